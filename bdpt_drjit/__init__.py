@@ -1,0 +1,41 @@
+"""bdpt-drjit: a wavefront bidirectional path tracer on Dr.Jit, with Mitsuba 3 as its
+scene system.
+
+    import mitsuba as mi
+    mi.set_variant("llvm_ad_rgb")          # optional: llvm_ad_rgb is chosen if unset
+    import bdpt_drjit                      # registers the integrator "bdpt"
+    res = bdpt_drjit.render("scene.xml", spp=64, max_depth=8, seed=1)
+    res.image                              # (H, W, C) NumPy array
+
+Layout: mis.py (all MIS weights), walk.py (subpath walks), connect.py (the
+strategies), film.py (camera block and light-image splats), render.py (passes),
+emitters.py / camera.py (the emitter and sensor models), integrators/bdpt.py
+(the Mitsuba plugin).
+"""
+from ._llvm import prepare as _prepare_llvm
+
+_prepare_llvm()
+
+import mitsuba as mi  # noqa: E402
+
+if mi.variant() is None:
+    mi.set_variant("llvm_ad_rgb")
+
+from .emitters import UnsupportedPluginError  # noqa: E402
+from .mis import HEURISTICS  # noqa: E402
+from .render import Renderer, RenderResult, Settings, render  # noqa: E402
+
+__version__ = "0.1.0"
+
+
+def register() -> None:
+    """Register the ``bdpt`` integrator with Mitsuba for the current variant
+    (done on import; call again after ``mi.set_variant``)."""
+    from integrators.bdpt import register as _register
+    _register()
+
+
+register()
+
+__all__ = ["render", "Renderer", "RenderResult", "Settings", "register",
+           "UnsupportedPluginError", "HEURISTICS"]

@@ -1,0 +1,157 @@
+"""The four kinds of strategies: each returns (or splats) one MIS-weighted
+contribution per lane.
+
+=============  ============================================  ==================
+strategy       how the path is completed                     where it lands
+=============  ============================================  ==================
+s = 0          camera subpath hits an emitter                camera block
+s = 1          fresh emitter sample at z_{t-1} (NEE)         camera block
+t = 1          light vertex connected through the pinhole    light block (splat)
+s, t >= 2      shadow ray between y_{s-1} and z_{t-1}        camera block
+=============  ============================================  ==================
+
+Contribution of (s, t) (Veach eq. 10.8, pbrt-v3 section 16.3.3):
+    C = beta_L(y_{s-1}) f_L(y_{s-2} -> y_{s-1} -> z) G f_E(y -> z_{t-1} -> z_{t-2}) beta_E(z_{t-1})
+with Mitsuba's ``bsdf.eval`` already holding each endpoint's shading cosine, so G
+reduces to 1 / d^2.  Light-side BSDFs are evaluated in importance mode with the
+shading-normal adjoint correction.  Every contribution passes ``finite``.
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+from . import mis
+from .records import (Vertex, adjoint_correction, finite, geometric_cosines,
+                      reverse_pdf, spectrum_nonzero)
+
+RADIANCE = mi.BSDFContext(mi.TransportMode.Radiance)
+IMPORTANCE = mi.BSDFContext(mi.TransportMode.Importance)
+
+
+def _count(ctx, mask):
+    """Count a traced ray per lane (rays-per-sample statistics)."""
+    ctx.rays += dr.select(mask, 1, 0)
+
+
+def emission_hit(ctx, si, beta, d_vcm, d_vc, prev: mi.Interaction3f | None, active):
+    """s = 0, t = j + 1: the camera ray arriving at z_j hit an area emitter.
+
+    ``prev`` is z_{j-1} (None when it is the pinhole, j = 1)."""
+    emitter = si.emitter(ctx.scene, active)
+    hit = active & (emitter != None)  # noqa: E711  (Dr.Jit pointer comparison)
+    contrib = beta * emitter.eval(si, hit)
+    if ctx.use_mis:
+        n = si.sh_frame.n
+        to_prev = si.to_world(si.wi)
+        pos_pdf, emission_pdf, _, _ = ctx.emitters.emission_pdfs(emitter, n, to_prev, hit)
+        if prev is None:
+            # The rival s = 1 strategy is (1,1): y_0 chosen by emission sampling.
+            direct_pdf = pos_pdf if ctx.enabled(1, 1) else mi.Float(0.0)
+        else:
+            direct_pdf = ctx.emitters.nee_pdf_a(prev, si.p, n, si.uv, emitter,
+                                                mi.Bool(False), si.time, hit)
+        contrib *= mis.weight_emission_hit(ctx.h, d_vcm, d_vc, direct_pdf, emission_pdf)
+    return dr.select(hit, finite(contrib), 0.0)
+
+
+def next_event(ctx, si, bsdf, vertex: Vertex, sample, active):
+    """s = 1, t = j + 1: sample a point on an emitter from z_j (Mitsuba's own light
+    sampling, so its pdf includes the selection pmf) and connect to it."""
+    scene = ctx.scene
+    ds, spec = scene.sample_emitter_direction(si, sample, False, active)
+    active = active & ((ds.pdf > 0) & spectrum_nonzero(spec))
+    _, cos_cam, ok = geometric_cosines(si, ds.d)
+    active = active & ok
+    wo = si.to_local(ds.d)
+    contrib = vertex.beta * bsdf.eval(RADIANCE, si, wo, active) * spec
+    active = active & (spectrum_nonzero(contrib))
+    _count(ctx, active)
+    active = active & (~scene.ray_test(si.spawn_ray_to(ds.p), active))
+    if ctx.use_mis:
+        bsdf_pdf = dr.select(ds.delta, 0.0, bsdf.pdf(RADIANCE, si, wo, active))
+        bsdf_rev = reverse_pdf(bsdf, IMPORTANCE, si, wo, active)
+        _, emission_pdf, cos_light, _ = ctx.emitters.emission_pdfs(ds.emitter, ds.n, -ds.d, active)
+        # The weight uses Mitsuba's pdf_emitter_direction, not ds.pdf: the s = 0
+        # strategy and the light subpaths can only query the former, and for some
+        # shapes (a sphere seen from inside) the two differ slightly.  Equal pdfs
+        # in every strategy keep the weights summing to one.
+        nee_pdf = dr.select(ds.delta, ds.pdf, scene.pdf_emitter_direction(si, ds, active & ~ds.delta))
+        contrib *= mis.weight_nee(ctx.h, vertex.d_vcm, vertex.d_vc, bsdf_pdf, nee_pdf,
+                                  emission_pdf, cos_cam, cos_light, bsdf_rev)
+    return dr.select(active, finite(contrib), 0.0)
+
+
+def light_vertex_to_camera(ctx, si, bsdf, vertex: Vertex, s: int, sample, active):
+    """t = 1, s = i + 1: connect light vertex y_i to the pinhole and splat."""
+    scene = ctx.scene
+    ds, importance = ctx.sensor.sample_direction(si, sample, active)
+    active = active & (ds.pdf > 0)
+    _, cos_out, ok = geometric_cosines(si, ds.d)
+    active = active & ok
+    wo = si.to_local(ds.d)
+    f = bsdf.eval(IMPORTANCE, si, wo, active) * adjoint_correction(si, ds.d)
+    contrib = vertex.beta * f * importance * ctx.camera_weight
+    active = active & (spectrum_nonzero(contrib))
+    _count(ctx, active)
+    active = active & (~scene.ray_test(si.spawn_ray_to(ds.p), active))
+    if ctx.use_mis:
+        rev = reverse_pdf(bsdf, RADIANCE, si, wo, active)
+        # imp = pdf_w(camera) / d^2, so the camera's area density at y_i is imp * cos.
+        cam_pdf_a = mi.unpolarized_spectrum(importance)[0] * cos_out / ctx.light_ratio
+        contrib *= mis.weight_light_to_camera(ctx.h, vertex.d_vcm, vertex.d_vc, cam_pdf_a, rev)
+    ctx.film.splat(s, ds.uv, si.wavelengths, finite(contrib), active)
+
+
+def emitter_to_camera(ctx, es, sample):
+    """(1,1): the emitter point y_0 of the light subpath seen through the pinhole.
+
+    Delta-position emitters are skipped: a pinhole sees a point light with
+    probability zero (Mitsuba's path tracer and ptracer do not show them either).
+    """
+    active = es.valid & ~es.delta_pos
+    it = dr.zeros(mi.Interaction3f)
+    it.p, it.n, it.time, it.wavelengths = es.p, es.n, ctx.time, ctx.wavelengths
+    ds, importance = ctx.sensor.sample_direction(it, sample, active)
+    active = active & (ds.pdf > 0)
+    le = ctx.emitters.emitted(es.emitter, es.p, es.n, es.uv, ds.d, mi.Bool(False),
+                              ctx.wavelengths, ctx.time, active)
+    cos_e = dr.abs(dr.dot(es.n, ds.d))
+    contrib = le * cos_e / es.pos_pdf_a * importance * ctx.camera_weight
+    active = active & (spectrum_nonzero(contrib))
+    _count(ctx, active)
+    active = active & (~ctx.scene.ray_test(it.spawn_ray_to(ds.p), active))
+    if ctx.use_mis:
+        cam_pdf_a = mi.unpolarized_spectrum(importance)[0] * cos_e / ctx.light_ratio
+        contrib *= mis.weight_emitter_to_camera(ctx.h, cam_pdf_a, es.pos_pdf_a)
+    ctx.film.splat(1, ds.uv, ctx.wavelengths, finite(contrib), active)
+
+
+def connect_vertices(ctx, light: Vertex, cam: Vertex):
+    """s, t >= 2: connect light vertex y_{s-1} and camera vertex z_{t-1}."""
+    active = light.connectible & cam.connectible
+    si_l, si_c = light.interaction(active), cam.interaction(active)
+    bsdf_l, bsdf_c = si_l.bsdf(), si_c.bsdf()
+    d = si_l.p - si_c.p
+    dist2 = dr.squared_norm(d)
+    w = d * dr.rsqrt(dist2)                     # from z_{t-1} toward y_{s-1}
+    active = active & (dist2 > 0)
+    _, cos_c, ok_c = geometric_cosines(si_c, w)
+    _, cos_l, ok_l = geometric_cosines(si_l, -w)
+    active = active & (ok_c & ok_l)
+    wc, wl = si_c.to_local(w), si_l.to_local(-w)
+    f_c = bsdf_c.eval(RADIANCE, si_c, wc, active)
+    f_l = bsdf_l.eval(IMPORTANCE, si_l, wl, active) * adjoint_correction(si_l, -w)
+    contrib = cam.beta * f_c * f_l * light.beta / dist2
+    active = active & (spectrum_nonzero(contrib))
+    _count(ctx, active)
+    active = active & (~ctx.scene.ray_test(si_c.spawn_ray_to(si_l.p), active))
+    if ctx.use_mis:
+        pdf_c = bsdf_c.pdf(RADIANCE, si_c, wc, active)
+        pdf_l = bsdf_l.pdf(IMPORTANCE, si_l, wl, active)
+        rev_c = reverse_pdf(bsdf_c, IMPORTANCE, si_c, wc, active)
+        rev_l = reverse_pdf(bsdf_l, RADIANCE, si_l, wl, active)
+        contrib *= mis.weight_connect(ctx.h, light.d_vcm, light.d_vc, cam.d_vcm, cam.d_vc,
+                                      pdf_c * cos_l / dist2, rev_c,
+                                      pdf_l * cos_c / dist2, rev_l)
+    return dr.select(active, finite(contrib), 0.0)

@@ -1,0 +1,199 @@
+"""Multiple importance sampling for BDPT: the heuristic and the ratio chains.
+
+Every MIS weight of the renderer is computed here, in O(1) per connection, from two
+quantities that each subpath vertex carries (Georgiev, "Implementing Vertex
+Connection and Merging", 2012 -- the VCM technical report -- section 6, with the
+merging terms dropped; the same recursion SmallVCM's BPT mode uses):
+
+    d_vcm, d_vc  (tech. rep. eqs. 31-33, 41-43)
+
+They hold, already passed through the heuristic, the partial sums of pdf ratios
+p_j / p_s (Veach's thesis eq. 10.9, Adamsen 2009 section 7.4) of every strategy that
+would have sampled the vertices *behind* the current one from the other side.
+A connection then needs only the pdfs at its two endpoints.
+
+Conventions (Veach's): s light vertices y_0..y_{s-1}, t camera vertices
+z_0..z_{t-1}; z_0 is the pinhole, y_0 a point on an emitter.  Pdf names carry their
+measure: ``*_pdf_w`` solid angle, ``*_pdf_a`` area.  All "cos" are geometric-normal
+cosines (they convert solid angle to area, Veach eq. 8.10).
+
+Consistency rules that make the weights of all strategies of a path sum to one
+(checked by tests/test_mis.py against a brute-force evaluation):
+  * Russian roulette is left out of every pdf (the weights are then functions of the
+    path alone; roulette stays unbiased because it divides the throughput).
+  * The emitter-selection pmf is part of every light pdf (emission and NEE).
+  * Delta lobes contribute a pdf of 1 in both directions and forbid connections at
+    their vertex (d_vcm = 0, tech. rep. section 6.1 "specular vertices").
+  * y_0's pdf is the emission position pdf (pmf / area) in strategies with s >= 2 and
+    (1,1), and the next-event pdf P_nee(y_0 | y_1) in (1,t>=2): Mitsuba samples
+    spheres by solid angle for next-event estimation, so the two may differ.
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+HEURISTICS = ("power", "balance", "uniform")
+
+
+class Heuristic:
+    """The MIS heuristic as a map on pdf ratios: w_s = 1 / sum_j h(p_j / p_s).
+
+    ``power``: h(x) = x^2 (Veach eq. 9.13, beta = 2); ``balance``: h(x) = x (eq. 9.10);
+    ``uniform``: h(x) = 1 for x > 0, so every strategy that can produce the path gets
+    the same weight (Adamsen 2009 section 7.3).  All three are multiplicative,
+    h(ab) = h(a) h(b), which is what lets the ratio chains apply h factor by factor.
+    """
+
+    def __init__(self, name: str = "power"):
+        if name not in HEURISTICS:
+            raise ValueError("bdpt: unknown mis heuristic %r (choose one of %s)"
+                             % (name, ", ".join(HEURISTICS)))
+        self.name = name
+
+    def __call__(self, x):
+        if self.name == "power":
+            return dr.square(x)
+        if self.name == "balance":
+            return x
+        return dr.select(x > 0, 1.0, 0.0)
+
+
+def _div(a, b):
+    """a / b with 0 where b is 0 or the result is not finite (no NaN enters a chain)."""
+    r = a / b
+    return dr.select((b != 0) & dr.isfinite(r), r, 0.0)
+
+
+def _weight(denominator):
+    """1 / (sum of heuristic ratios), 0 if the sum is degenerate."""
+    w = dr.rcp(denominator)
+    return dr.select(dr.isfinite(w) & (denominator > 0), w, 0.0)
+
+
+# ---------------------------------------------------------------------------
+# Subpath starts
+# ---------------------------------------------------------------------------
+
+def camera_start(h: Heuristic, cam_pdf_w, light_paths_per_camera_sample: float,
+                 light_image: bool):
+    """(d_vcm, d_vc) at the pinhole z_0 (tech. rep. eq. 31).
+
+    ``cam_pdf_w`` is the solid-angle density of the camera ray over the film (crop)
+    area, 1 / (A cos^3).  The light tracer (t = 1) contributes to a pixel with
+    N_L light paths against the camera's N_C samples, so its effective camera pdf
+    is cam_pdf_w * N_C / N_L (tech. rep. eq. 46's division by the light path count).
+    Without the light image the t = 1 strategies are gone: d_vcm = 0 removes exactly
+    their terms from every chain.
+    """
+    if not light_image:
+        return mi.Float(0.0), mi.Float(0.0)
+    return h(_div(light_paths_per_camera_sample, cam_pdf_w)), mi.Float(0.0)
+
+
+def light_start(h: Heuristic, emission_pdf, cos_emit, delta_position):
+    """d_vc at y_0 (tech. rep. eq. 32); d_vcm waits for y_1 (see ``light_first_hit``).
+
+    ``emission_pdf`` = pmf * pdf_pos_a * pdf_dir_w, the density of the emitted ray.
+    A delta-position emitter (point, spot) cannot be hit by a camera path: d_vc = 0.
+    """
+    return dr.select(delta_position, 0.0, h(_div(cos_emit, emission_pdf)))
+
+
+def light_first_hit(h: Heuristic, d_vc0, nee_pdf_a, emission_pdf, dist2, cos_hit):
+    """(d_vcm, d_vc) at y_1 (tech. rep. eqs. 32 and 34 combined).
+
+    ``nee_pdf_a`` = P_nee(y_0 | y_1) in area measure (pmf included): the density with
+    which next-event estimation from y_1 would have chosen y_0.  For a delta-position
+    emitter it is the selection pmf (the position delta cancels against the
+    emission's).
+    """
+    d_vcm = h(_div(nee_pdf_a * dist2, emission_pdf * cos_hit))
+    d_vc = _div(d_vc0, h(cos_hit))
+    return d_vcm, d_vc
+
+
+# ---------------------------------------------------------------------------
+# Updates along a subpath
+# ---------------------------------------------------------------------------
+
+def after_hit(h: Heuristic, d_vcm, d_vc, dist2, cos_hit):
+    """Convert to area measure at the vertex just found (tech. rep. eq. 34)."""
+    inv_cos = _div(1.0, h(cos_hit))
+    return d_vcm * h(dist2) * inv_cos, d_vc * inv_cos
+
+
+def after_scatter(h: Heuristic, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta):
+    """Account for the direction sampled at the current vertex (tech. rep. eqs. 35-36).
+
+    ``pdf_fwd_w``: density of the sampled direction; ``pdf_rev_w``: density of the
+    reverse direction, i.e. of sampling where the subpath came from, had it arrived
+    from the new direction.  A delta lobe's pdfs cancel: d_vcm = 0 forbids
+    connecting at this vertex and d_vc only picks up the cosine (section 6.1).
+    """
+    d_vc_smooth = h(_div(cos_out, pdf_fwd_w)) * (d_vc * h(pdf_rev_w) + d_vcm)
+    d_vcm_smooth = h(_div(1.0, pdf_fwd_w))
+    return (dr.select(delta, 0.0, d_vcm_smooth),
+            dr.select(delta, d_vc * h(cos_out), d_vc_smooth))
+
+
+# ---------------------------------------------------------------------------
+# Weights of the four kinds of strategies
+# ---------------------------------------------------------------------------
+
+def weight_emission_hit(h: Heuristic, d_vcm, d_vc, direct_pdf_a, emission_pdf):
+    """s = 0: the camera subpath hit an emitter (tech. rep. eq. 48).
+
+    ``direct_pdf_a``: density with which the s = 1 strategy would pick the hit point
+    (P_nee from the previous camera vertex, or pmf/area when that vertex is the
+    pinhole, i.e. the (1,1) strategy).  ``emission_pdf``: emission density of the
+    ray leaving the emitter toward the previous camera vertex.
+    """
+    return _weight(1.0 + h(direct_pdf_a) * d_vcm + h(emission_pdf) * d_vc)
+
+
+def weight_nee(h: Heuristic, d_vcm, d_vc, bsdf_pdf_w, nee_pdf_w, emission_pdf,
+               cos_cam, cos_light, bsdf_rev_w):
+    """s = 1: next-event estimation at camera vertex z_{t-1} (tech. rep. eqs. 44-45).
+
+    ``bsdf_pdf_w``: density of the camera vertex's BSDF sampling the light direction
+    (0 for delta lights: the s = 0 strategy cannot hit them).  ``nee_pdf_w``: the NEE
+    density of that direction (pmf included).  ``cos_cam``/``cos_light``: cosines at
+    the camera vertex and at the emitter (1 for delta-position emitters).
+    """
+    w_light = h(_div(bsdf_pdf_w, nee_pdf_w))
+    w_camera = h(_div(emission_pdf * cos_cam, nee_pdf_w * cos_light)) * (
+        d_vcm + d_vc * h(bsdf_rev_w))
+    return _weight(w_light + 1.0 + w_camera)
+
+
+def weight_light_to_camera(h: Heuristic, d_vcm, d_vc, cam_pdf_a, bsdf_rev_w):
+    """t = 1, s >= 2: light vertex y_{s-1} splatted through the pinhole (eq. 46).
+
+    ``cam_pdf_a``: the camera's area density at the light vertex, already scaled by
+    N_C / N_L (see ``camera_start``).  ``bsdf_rev_w``: density at y_{s-1} of sampling
+    the direction back to y_{s-2} had the path arrived from the camera.
+    """
+    return _weight(1.0 + h(cam_pdf_a) * (d_vcm + d_vc * h(bsdf_rev_w)))
+
+
+def weight_emitter_to_camera(h: Heuristic, cam_pdf_a, emission_pos_pdf_a):
+    """(1,1): the emitter point y_0 seen directly through the pinhole.
+
+    Its only rival is (0,2), the camera ray hitting y_0: w = 1 / (1 + h(p_02 / p_11)).
+    """
+    return _weight(1.0 + h(_div(cam_pdf_a, emission_pos_pdf_a)))
+
+
+def weight_connect(h: Heuristic, light_d_vcm, light_d_vc, cam_d_vcm, cam_d_vc,
+                   cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w):
+    """s >= 2, t >= 2: connect y_{s-1} to z_{t-1} by a shadow ray (eqs. 40, 47).
+
+    ``cam_bsdf_pdf_a``: density of z_{t-1}'s BSDF sampling y_{s-1} (area measure at
+    y_{s-1}); ``light_bsdf_pdf_a`` likewise from y_{s-1} to z_{t-1}.  The ``*_rev_w``
+    are each vertex's density of sampling its own predecessor had it arrived along
+    the connecting edge.
+    """
+    w_light = h(cam_bsdf_pdf_a) * (light_d_vcm + light_d_vc * h(light_bsdf_rev_w))
+    w_camera = h(light_bsdf_pdf_a) * (cam_d_vcm + cam_d_vc * h(cam_bsdf_rev_w))
+    return _weight(w_light + 1.0 + w_camera)

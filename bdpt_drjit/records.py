@@ -1,0 +1,73 @@
+"""Per-vertex records of the subpath walks (struct-of-arrays, one entry per lane).
+
+A vertex keeps only what connections and MIS need: the intersection it was found
+by (rebuilt into a full SurfaceInteraction on demand, which reproduces BSDF
+evaluation exactly and costs far less memory than storing it), the throughput up
+to it, and the two MIS quantities of mis.py.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+
+
+@dataclass
+class Vertex:
+    """Subpath vertex z_j (camera) or y_i (light), i, j >= 1."""
+    pi: mi.PreliminaryIntersection3f   # how the vertex was found ...
+    ray: mi.Ray3f                      # ... by this ray (wi = -ray.d)
+    beta: mi.Spectrum                  # throughput from the subpath's start to here
+    d_vcm: mi.Float                    # MIS recursion state (mis.py)
+    d_vc: mi.Float
+    connectible: mi.Bool               # exists and has a non-delta BSDF lobe
+
+    def interaction(self, active) -> mi.SurfaceInteraction3f:
+        return self.pi.compute_surface_interaction(self.ray, mi.RayFlags.All, active)
+
+
+def geometric_cosines(si: mi.SurfaceInteraction3f, wo_world: mi.Vector3f):
+    """(cos_in, cos_out, ok) w.r.t. the geometric normal for wi = si.wi and wo.
+
+    ``ok`` is False where a shading normal puts a direction on the other side than
+    the geometric normal does; such configurations are given zero contribution in
+    every strategy and walk (as Mitsuba's ptracer does to prevent light leaks), so
+    all strategies estimate the same integrand.
+    """
+    wo_local = si.to_local(wo_world)
+    wi_geo = dr.dot(si.n, si.to_world(si.wi))
+    wo_geo = dr.dot(si.n, wo_world)
+    ok = ((wi_geo * mi.Frame3f.cos_theta(si.wi) > 0)
+          & (wo_geo * mi.Frame3f.cos_theta(wo_local) > 0))
+    return dr.abs(wi_geo), dr.abs(wo_geo), ok
+
+
+def adjoint_correction(si: mi.SurfaceInteraction3f, wo_world: mi.Vector3f):
+    """Shading-normal correction of the adjoint BSDF (Veach p. 155, eq. 5.17):
+    |cos_s(wi) cos_g(wo)| / |cos_s(wo) cos_g(wi)|, applied to light subpaths."""
+    wo_local = si.to_local(wo_world)
+    num = mi.Frame3f.cos_theta(si.wi) * dr.dot(si.n, wo_world)
+    den = mi.Frame3f.cos_theta(wo_local) * dr.dot(si.n, si.to_world(si.wi))
+    c = dr.abs(num / den)
+    return dr.select(dr.isfinite(c), c, 0.0)
+
+
+def reverse_pdf(bsdf: mi.BSDF, ctx: mi.BSDFContext, si: mi.SurfaceInteraction3f,
+                wo_local: mi.Vector3f, active) -> mi.Float:
+    """Density of sampling si.wi at this vertex had the path arrived from wo."""
+    # Copy: a struct member read from Python is a reference to its storage.
+    wi = mi.Vector3f(si.wi)
+    si.wi = wo_local
+    pdf = bsdf.pdf(ctx, si, wi, active)
+    si.wi = wi
+    return pdf
+
+
+def spectrum_nonzero(x) -> mi.Bool:
+    return dr.max(mi.unpolarized_spectrum(x)) > 0
+
+
+def finite(x):
+    """Zero where a value is not finite: the guard behind every contribution."""
+    return dr.select(dr.isfinite(x), x, 0.0)

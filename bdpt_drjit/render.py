@@ -1,0 +1,326 @@
+"""The renderer: passes of wavefronts, each a list of named stages.
+
+    for each pass:
+        camera rays       camera.sample_camera_rays      one lane per pixel sample
+        light subpaths    walk.trace_light_subpaths      + t = 1 splats
+        camera subpaths   walk.trace_camera_subpaths     + s = 0, s = 1
+        connections       connect.connect_vertices       s, t >= 2
+        film              film.FilmAccumulator           camera block + light block
+
+Each camera sample i is paired with light subpath i (N_L = N_C), so the light image
+is normalized by W*H / (total camera samples) and MIS uses N_L / N_C = 1.
+Passes split the work so that vertex buffers stay under a memory budget; a pass
+covers all pixels at ``spp_pass`` samples, or a range of pixels at 1 sample for
+very large films.  Peak memory therefore does not grow with spp.
+"""
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from . import camera as camera_stage
+from . import connect
+from .emitters import Emitters
+from .film import FilmAccumulator
+from .mis import Heuristic
+from .walk import trace_camera_subpaths, trace_light_subpaths
+
+DEFAULT_MEMORY_BUDGET = 2 * 1024 ** 3
+# Bytes per lane: one stored vertex (intersection, ray, throughput, MIS state) and
+# the transient state of one depth step (surface interaction, BSDF sample, rays).
+_VERTEX_BYTES = 112
+_LANE_BYTES = 1600
+
+
+@dataclass
+class Settings:
+    """Integrator parameters, named as in Mitsuba (see integrators/bdpt.py)."""
+    max_depth: int = -1
+    rr_depth: int = 5
+    mis: str = "power"
+    light_image: bool = True
+    hide_emitters: bool = False
+    technique: tuple[int, int] | None = None
+    samples_per_pass: int = 0
+    memory_budget: int = DEFAULT_MEMORY_BUDGET
+
+    def __post_init__(self):
+        if isinstance(self.technique, str):
+            self.technique = parse_technique(self.technique)
+        if self.max_depth < -1:
+            raise ValueError("bdpt: max_depth must be -1 (unbounded) or >= 0, got %d" % self.max_depth)
+        if self.rr_depth < 1:
+            raise ValueError("bdpt: rr_depth must be >= 1, got %d" % self.rr_depth)
+        if self.samples_per_pass < 0:
+            raise ValueError("bdpt: samples_per_pass must be >= 0 (0 = automatic)")
+        Heuristic(self.mis)          # validates the name
+        if self.technique is not None:
+            s, t = self.technique
+            if s < 0 or t < 1:
+                raise ValueError("bdpt: technique (s,t) needs s >= 0 and t >= 1, got %s" % (self.technique,))
+            if t == 1 and not self.light_image:
+                raise ValueError("bdpt: technique %d,1 is a light-tracing strategy, but light_image is false" % s)
+
+
+def parse_technique(text: str | None):
+    if text in (None, "", "all"):
+        return None
+    try:
+        s, t = (int(x) for x in str(text).replace("(", "").replace(")", "").split(","))
+    except ValueError:
+        raise ValueError("bdpt: technique must be written \"s,t\" (e.g. \"1,2\"), got %r" % (text,)) from None
+    return s, t
+
+
+@dataclass
+class PassContext:
+    """What the stages of one pass share."""
+    scene: mi.Scene
+    sensor: mi.Sensor
+    settings: Settings
+    emitters: Emitters
+    h: Heuristic
+    film: FilmAccumulator
+    camera_sampler: mi.Sampler
+    light_sampler: mi.Sampler
+    time: mi.Float = None
+    wavelengths: mi.UnpolarizedSpectrum = None
+    camera_weight: mi.Spectrum = None
+    rays: mi.UInt32 = None
+    light_ratio: float = 1.0        # N_L / N_C
+
+    @property
+    def use_mis(self) -> bool:
+        return self.settings.technique is None
+
+    def enabled(self, s: int, t: int) -> bool:
+        st = self.settings
+        k = s + t - 1
+        if k < 1 or (st.max_depth >= 0 and k > st.max_depth):
+            return False
+        if st.technique is not None and st.technique != (s, t):
+            return False
+        if t == 1 and not st.light_image:
+            return False
+        if st.hide_emitters and k == 1:
+            return False
+        if s >= 1 and self.emitters.count == 0:
+            return False
+        return True
+
+
+@dataclass
+class RenderResult:
+    """What ``render`` returns.  ``image`` is an (H, W, C) float32 NumPy array."""
+    image: np.ndarray
+    tensor: mi.TensorXf
+    strategies: dict = field(default_factory=dict)
+    spp: int = 0
+    passes: int = 0
+    time: float = 0.0
+    rays: int = 0
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def samples_per_second(self) -> float:
+        return self.spp * self.stats.get("pixels", 0) / self.time if self.time > 0 else 0.0
+
+
+def _mix_seed(*values: int) -> int:
+    """A 32-bit seed from several integers (splitmix64 finalizer)."""
+    x = 0x9E3779B97F4A7C15
+    for v in values:
+        x = (x ^ (int(v) & 0xFFFFFFFFFFFFFFFF)) * 0xBF58476D1CE4E5B9 & 0xFFFFFFFFFFFFFFFF
+        x ^= x >> 31
+        x = x * 0x94D049BB133111EB & 0xFFFFFFFFFFFFFFFF
+        x ^= x >> 29
+    return x & 0xFFFFFFFF
+
+
+def check_variant() -> None:
+    variant = mi.variant()
+    if variant is None or not (variant.startswith("llvm_") or variant.startswith("cuda_")):
+        raise RuntimeError("bdpt: needs a JIT variant of Mitsuba (llvm_* or cuda_*), but the "
+                           "current variant is %r; call mi.set_variant('llvm_ad_rgb') first" % variant)
+    if "polarized" in variant:
+        raise RuntimeError("bdpt: polarized variants are not supported (got %r)" % variant)
+    from . import _llvm
+    _llvm.check(variant)
+
+
+class Renderer:
+    """A progressive BDPT render of one sensor: call ``run_pass`` until ``done``.
+
+    ``bdpt_drjit.render`` drives it to the end; the command line drives it pass by
+    pass to show progress, write checkpoints and stop on a signal or time budget.
+    """
+
+    def __init__(self, scene: mi.Scene, sensor=0, spp: int | None = None, seed: int = 0,
+                 strategy_images: bool = False, **settings):
+        check_variant()
+        if isinstance(sensor, int):
+            sensors = scene.sensors()
+            if not sensors:
+                raise ValueError("bdpt: the scene has no sensor")
+            sensor = sensors[sensor]
+        camera_stage.check_sensor(sensor)
+        self.scene, self.sensor = scene, sensor
+        self.settings = Settings(**settings)
+        self.emitters = Emitters(scene)
+        if self.emitters.count == 0:
+            warnings.warn("bdpt: the scene has no emitters; the image is black", stacklevel=2)
+        self.seed = int(seed)
+        self.strategy_images = strategy_images
+        film = sensor.film()
+        grid = camera_stage.film_grid(film)
+        self.pixels = int(grid[0]) * int(grid[1])
+        self.spp = int(spp) if spp else sensor.sampler().sample_count()
+        if self.spp <= 0:
+            raise ValueError("bdpt: spp must be positive, got %d" % self.spp)
+        self._plan()
+        self.film = FilmAccumulator(film, coalesce=self.spp >= 4, strategy_images=strategy_images)
+        self.spp_done = 0
+        self.passes_done = 0
+        self.time = 0.0
+        self.rays = 0
+        self._sample_count = 0       # camera samples = light paths so far
+
+    # -- planning ----------------------------------------------------------------
+    def _lane_bytes(self) -> int:
+        d = self.settings.max_depth if self.settings.max_depth >= 0 else 24
+        return 2 * d * _VERTEX_BYTES + _LANE_BYTES
+
+    def _plan(self) -> None:
+        """Split spp x pixels into passes of at most ``max_lanes`` lanes."""
+        max_lanes = max(1024, self.settings.memory_budget // self._lane_bytes())
+        max_lanes = min(max_lanes, 2 ** 31)
+        per_pass = self.settings.samples_per_pass or max(1, max_lanes // self.pixels)
+        per_pass = min(per_pass, self.spp)
+        passes = []
+        if self.pixels * per_pass <= max_lanes or self.settings.samples_per_pass:
+            done = 0
+            while done < self.spp:
+                n = min(per_pass, self.spp - done)
+                passes.append((0, self.pixels, n))
+                done += n
+        else:                          # very large film: pixel ranges at 1 spp
+            chunk = max_lanes
+            for _ in range(self.spp):
+                for start in range(0, self.pixels, chunk):
+                    passes.append((start, min(chunk, self.pixels - start), 1))
+        self.plan = passes
+
+    @property
+    def done(self) -> bool:
+        return self.passes_done >= len(self.plan)
+
+    # -- one pass -----------------------------------------------------------------
+    def _sampler(self, stream: int, pass_index: int, lanes: int, spp: int) -> mi.Sampler:
+        sampler = self.sensor.sampler().clone()
+        sampler.set_sample_count(spp)
+        sampler.set_samples_per_wavefront(spp)
+        sampler.seed(_mix_seed(self.seed, pass_index, stream), lanes)
+        return sampler
+
+    def _max_vertices(self):
+        """How many camera and light vertices the enabled strategies can use."""
+        st = self.settings
+        if st.technique is not None:
+            s, t = st.technique
+            return t - 1, (s - 1 if s >= 2 else 0)
+        if st.max_depth < 0:
+            return None, None
+        return st.max_depth, st.max_depth - (1 if st.light_image else 2)
+
+    def run_pass(self) -> None:
+        if self.done:
+            return
+        pixel_offset, n_pixels, spp = self.plan[self.passes_done]
+        lanes = n_pixels * spp
+        start = time.perf_counter()
+        with dr.suspend_grad():
+            self._render_pass(pixel_offset, n_pixels, spp, lanes)
+        self.time += time.perf_counter() - start
+        self.passes_done += 1
+        self.spp_done = sum(p[1] * p[2] for p in self.plan[:self.passes_done]) // self.pixels
+
+    def _render_pass(self, pixel_offset, n_pixels, spp, lanes):
+        pass_index = self.passes_done
+        cam_sampler = self._sampler(0, pass_index, lanes, spp)
+        ctx = PassContext(scene=self.scene, sensor=self.sensor, settings=self.settings,
+                          emitters=self.emitters, h=Heuristic(self.settings.mis),
+                          film=self.film, camera_sampler=cam_sampler,
+                          light_sampler=self._sampler(1, pass_index, lanes, spp))
+        ctx.rays = dr.zeros(mi.UInt32, lanes)
+        max_cam, max_light = self._max_vertices()
+
+        # Stage 1: camera rays.
+        cam = camera_stage.sample_camera_rays(self.sensor, cam_sampler, pixel_offset, n_pixels, spp)
+        ctx.time, ctx.wavelengths, ctx.camera_weight = cam.ray.time, cam.ray.wavelengths, cam.weight
+        cam_sampler.schedule_state()
+        dr.eval(cam)
+
+        # Stage 2: light subpaths (+ t = 1 splats).
+        light_vertices = []
+        if self.emitters.count and (max_light is None or max_light >= 0):
+            light_vertices = trace_light_subpaths(ctx, max_light)
+
+        # Stage 3: camera subpaths (+ s = 0 and s = 1).
+        cam_vertices, radiance = trace_camera_subpaths(ctx, cam, max_cam)
+
+        # Stage 4: connections s, t >= 2.
+        for j, cv in enumerate(cam_vertices, start=1):
+            for i, lv in enumerate(light_vertices, start=1):
+                s, t = i + 1, j + 1
+                if not ctx.enabled(s, t):
+                    continue
+                c = connect.connect_vertices(ctx, lv, cv)
+                radiance += c
+                self.film.put_strategy(self.film.strategy_block(s, t), cam.pos,
+                                       cam.ray.wavelengths, c, True)
+                dr.eval(radiance, ctx.rays)
+
+        # Stage 5: film.
+        self.film.put_camera(cam.pos, cam.ray.wavelengths, radiance, 1.0)
+        self.film.light_paths += lanes
+        self.rays += int(dr.sum(ctx.rays)[0])
+
+    # -- results -------------------------------------------------------------------
+    def tensor(self) -> mi.TensorXf:
+        return self.film.develop()
+
+    def result(self) -> RenderResult:
+        tensor = self.tensor()
+        strategies = {}
+        if self.strategy_images:
+            strategies = {k: v.numpy() for k, v in self.film.develop_strategies().items()}
+        return RenderResult(image=tensor.numpy(), tensor=tensor, strategies=strategies,
+                            spp=self.spp_done, passes=self.passes_done, time=self.time,
+                            rays=self.rays,
+                            stats={"pixels": self.pixels, "lanes_per_pass": max(p[1] * p[2] for p in self.plan),
+                                   "rays_per_sample": self.rays / max(1, self.spp_done * self.pixels)})
+
+
+def render(scene, spp: int | None = None, seed: int = 0, sensor=0,
+           strategy_images: bool = False, **settings) -> RenderResult:
+    """Render ``scene`` (a ``mi.Scene`` or a path to an XML file) with BDPT.
+
+    Keyword settings: max_depth (-1), rr_depth (5), mis ("power" | "balance" |
+    "uniform"), light_image (True), hide_emitters (False), technique (None or
+    (s, t) / "s,t"), samples_per_pass (0 = automatic), memory_budget (bytes).
+    With ``strategy_images=True`` the result's ``strategies[(s, t)]`` holds every
+    strategy's MIS-weighted image; they sum to ``image``.
+    """
+    if isinstance(scene, str):
+        scene = mi.load_file(scene)
+    r = Renderer(scene, sensor=sensor, spp=spp, seed=seed, strategy_images=strategy_images,
+                 **settings)
+    while not r.done:
+        r.run_pass()
+    return r.result()

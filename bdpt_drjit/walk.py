@@ -1,0 +1,154 @@
+"""Subpath walks: light subpaths and camera subpaths, one depth step per kernel.
+
+Each step intersects, updates the MIS state (mis.py), records the vertex, adds the
+strategies that need nothing but this vertex (t = 1 splats on light subpaths; s = 0
+and s = 1 on camera subpaths), samples the BSDF and applies Russian roulette.  One
+``dr.eval`` per depth; depth-dependent choices are Python branches that give a
+handful of kernel variants, never a kernel per depth.
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+from . import connect, mis
+from .records import Vertex, adjoint_correction, geometric_cosines, reverse_pdf
+
+RADIANCE, IMPORTANCE = connect.RADIANCE, connect.IMPORTANCE
+
+
+def _interaction(si: mi.SurfaceInteraction3f) -> mi.Interaction3f:
+    """The part of a vertex that pdf queries on the next vertex need."""
+    it = dr.zeros(mi.Interaction3f)
+    it.p, it.n, it.t, it.time, it.wavelengths = si.p, si.n, si.t, si.time, si.wavelengths
+    return it
+
+
+def _scatter(ctx, sampler, si, bsdf, mode_ctx, rev_ctx, d_vcm, d_vc, beta, alpha, eta,
+             active, depth, importance: bool):
+    """Sample the BSDF at the current vertex and extend the subpath by one ray."""
+    bs, weight = bsdf.sample(mode_ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
+    wo = si.to_world(bs.wo)
+    _, cos_out, ok = geometric_cosines(si, wo)
+    if importance:
+        weight *= adjoint_correction(si, wo)
+    active = active & (ok & (bs.pdf > 0))
+    delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+    pdf_rev = reverse_pdf(bsdf, rev_ctx, si, bs.wo, active)
+    d_vcm, d_vc = mis.after_scatter(ctx.h, d_vcm, d_vc, cos_out, bs.pdf, pdf_rev, delta)
+    beta = beta * weight
+    alpha = alpha * weight
+    eta = eta * bs.eta
+    # Russian roulette (Mitsuba's rule); left out of all MIS pdfs (see mis.py).
+    if depth >= ctx.settings.rr_depth:
+        q = dr.minimum(dr.max(mi.unpolarized_spectrum(alpha))
+                       * (1.0 if importance else dr.square(eta)), 0.95)
+        active = active & (sampler.next_1d(active) < q)
+        beta = beta * dr.rcp(q)
+    active = active & (dr.max(mi.unpolarized_spectrum(beta)) > 0)
+    ray = si.spawn_ray(wo)
+    return ray, d_vcm, d_vc, beta, alpha, eta, active
+
+
+def trace_light_subpaths(ctx, max_vertex: int | None) -> list[Vertex]:
+    """Light vertices y_1..y_n (n <= max_vertex), splatting t = 1 on the way."""
+    sampler, scene = ctx.light_sampler, ctx.scene
+    es = ctx.emitters.sample_emission(ctx.time, ctx.wavelengths, sampler.next_1d(),
+                                      sampler.next_2d(), sampler.next_2d())
+    if ctx.enabled(1, 1):
+        connect.emitter_to_camera(ctx, es, sampler.next_2d())
+    d_vc = mis.light_start(ctx.h, es.emission_pdf, es.cos_emit, es.delta_pos)
+    d_vcm = mi.Float(0.0)
+    it0 = dr.zeros(mi.Interaction3f)
+    it0.p, it0.n, it0.time, it0.wavelengths = es.p, es.n, ctx.time, ctx.wavelengths
+    ray = it0.spawn_ray(es.d)
+    beta, active, prev_p = es.beta, mi.Bool(es.valid), es.p
+    alpha, eta = dr.ones(mi.Spectrum), mi.Float(1.0)
+    sampler.schedule_state()
+    dr.eval(es, ray, d_vc, ctx.rays)
+
+    vertices: list[Vertex] = []
+    i = 1
+    while (max_vertex is None or i <= max_vertex) and dr.any(active):
+        ctx.rays += dr.select(active, 1, 0)
+        pi = scene.ray_intersect_preliminary(ray, False, active)
+        si = pi.compute_surface_interaction(ray, mi.RayFlags.All, active)
+        active = active & (si.is_valid())
+        cos_in = dr.abs(dr.dot(si.n, ray.d))
+        dist2 = dr.squared_norm(si.p - prev_p)
+        if i == 1:
+            nee = ctx.emitters.nee_pdf_a(si, es.p, es.n, es.uv, es.emitter, es.delta_pos,
+                                         ctx.time, active)
+            d_vcm, d_vc = mis.light_first_hit(ctx.h, d_vc, nee, es.emission_pdf, dist2, cos_in)
+        else:
+            d_vcm, d_vc = mis.after_hit(ctx.h, d_vcm, d_vc, dist2, cos_in)
+        bsdf = si.bsdf()
+        connectible = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        vertex = Vertex(pi=pi, ray=mi.Ray3f(ray), beta=beta, d_vcm=d_vcm, d_vc=d_vc,
+                        connectible=connectible)
+        if ctx.enabled(i + 1, 1):
+            connect.light_vertex_to_camera(ctx, si, bsdf, vertex, i + 1, sampler.next_2d(),
+                                           connectible)
+        if max_vertex is None or i < max_vertex:
+            prev_p = si.p
+            ray, d_vcm, d_vc, beta, alpha, eta, active = _scatter(
+                ctx, sampler, si, bsdf, IMPORTANCE, RADIANCE, d_vcm, d_vc, beta, alpha,
+                eta, active, i, importance=True)
+        else:
+            active = mi.Bool(False)
+        sampler.schedule_state()
+        dr.eval(vertex, ray, d_vcm, d_vc, beta, alpha, eta, active, prev_p, ctx.rays)
+        vertices.append(vertex)
+        i += 1
+    return vertices
+
+
+def trace_camera_subpaths(ctx, cam, max_vertex: int | None):
+    """Camera vertices z_1..z_n with the s = 0 and s = 1 strategies; returns the
+    vertices and the per-lane radiance those strategies gathered."""
+    sampler, scene, sensor = ctx.camera_sampler, ctx.scene, ctx.sensor
+    ray = mi.Ray3f(cam.ray)
+    beta, active = mi.Spectrum(cam.weight), mi.Bool(True)
+    alpha, eta = dr.ones(mi.Spectrum), mi.Float(1.0)
+    d_vcm, d_vc = mi.Float(0.0), mi.Float(0.0)
+    prev = None
+    radiance = dr.zeros(mi.Spectrum, dr.width(ray.o))
+    vertices: list[Vertex] = []
+    j = 1
+    while (max_vertex is None or j <= max_vertex) and (j == 1 or dr.any(active)):
+        ctx.rays += dr.select(active, 1, 0)
+        pi = scene.ray_intersect_preliminary(ray, False, active)
+        si = pi.compute_surface_interaction(ray, mi.RayFlags.All, active)
+        active = active & (si.is_valid())
+        cos_in = dr.abs(dr.dot(si.n, ray.d))
+        if j == 1:
+            # Camera pdf of z_1 (tech. rep. eq. 31): imp * d^2 = 1 / (A cos^3).
+            ds, imp = sensor.sample_direction(si, mi.Point2f(0.5), active)
+            cam_pdf_w = mi.unpolarized_spectrum(imp)[0] * dr.square(ds.dist)
+            d_vcm, d_vc = mis.camera_start(ctx.h, cam_pdf_w, ctx.light_ratio, ctx.settings.light_image)
+            d_vcm, d_vc = mis.after_hit(ctx.h, d_vcm, d_vc, dr.square(ds.dist), cos_in)
+        else:
+            d_vcm, d_vc = mis.after_hit(ctx.h, d_vcm, d_vc, dr.squared_norm(si.p - prev.p), cos_in)
+        bsdf = si.bsdf()
+        connectible = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        vertex = Vertex(pi=pi, ray=ray, beta=beta, d_vcm=d_vcm, d_vc=d_vc, connectible=connectible)
+        if ctx.enabled(0, j + 1):
+            c = connect.emission_hit(ctx, si, beta, d_vcm, d_vc, prev, active)
+            radiance += c
+            ctx.film.put_strategy(ctx.film.strategy_block(0, j + 1), cam.pos, ray.wavelengths, c, active)
+        if ctx.enabled(1, j + 1):
+            c = connect.next_event(ctx, si, bsdf, vertex, sampler.next_2d(), connectible)
+            radiance += c
+            ctx.film.put_strategy(ctx.film.strategy_block(1, j + 1), cam.pos, ray.wavelengths, c, active)
+        if max_vertex is None or j < max_vertex:
+            prev = _interaction(si)
+            ray, d_vcm, d_vc, beta, alpha, eta, active = _scatter(
+                ctx, sampler, si, bsdf, RADIANCE, IMPORTANCE, d_vcm, d_vc, beta, alpha,
+                eta, active, j, importance=False)
+        else:
+            active = mi.Bool(False)
+        sampler.schedule_state()
+        dr.eval(vertex, radiance, ray, d_vcm, d_vc, beta, alpha, eta, active, prev, ctx.rays)
+        vertices.append(vertex)
+        j += 1
+    return vertices, radiance

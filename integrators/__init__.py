@@ -1,0 +1,1 @@
+"""Mitsuba integrator plugins of bdpt-drjit (registered by ``import bdpt_drjit``)."""

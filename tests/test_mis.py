@@ -1,0 +1,171 @@
+"""MIS partition of unity: for random paths, the weights that mis.py's recursion
+gives every strategy able to sample the path sum to one, and equal the weights
+computed by brute force from products of per-vertex area pdfs (Veach eq. 10.9).
+
+A path x_0 .. x_k has x_0 on an emitter and x_k at the pinhole.  Every per-vertex
+quantity (directional pdfs both ways, cosines, distances) is drawn at random, and
+vertices are made delta (specular) or the emitter a point light at random, so the
+test exercises every branch of the chains, including delta vertices.
+"""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import bdpt_drjit  # noqa: F401  (sets the variant)
+from bdpt_drjit import mis
+
+N = 4000  # random paths per path length
+
+
+def random_path(rng, k, delta_prob=0.3, point_light_prob=0.3):
+    """Arrays (one row per path) describing random paths of k edges."""
+    P = {}
+    P["dist2"] = rng.uniform(0.05, 4.0, (N, k))            # edge (x_i, x_{i+1})
+    P["cos_fwd"] = rng.uniform(0.05, 1.0, (N, k))          # at x_i toward x_{i+1}
+    P["cos_bwd"] = rng.uniform(0.05, 1.0, (N, k))          # at x_{i+1} toward x_i
+    P["pdf_l"] = rng.uniform(0.05, 3.0, (N, k + 1))        # at x_i: sample x_{i+1} (from x_{i-1})
+    P["pdf_e"] = rng.uniform(0.05, 3.0, (N, k + 1))        # at x_i: sample x_{i-1} (from x_{i+1})
+    P["delta"] = rng.uniform(size=(N, k + 1)) < delta_prob  # interior vertices only
+    P["delta"][:, 0] = False
+    P["delta"][:, k] = False
+    P["point_light"] = rng.uniform(size=N) < point_light_prob
+    P["e_pos"] = rng.uniform(0.1, 2.0, N)                  # pmf / area
+    P["nee_a"] = rng.uniform(0.1, 2.0, N)                  # P_nee(x_0 | x_1), area
+    P["cam_w"] = rng.uniform(0.5, 3.0, N)                  # camera solid-angle pdf toward x_{k-1}
+    # A delta lobe's pdf counts as 1 in both directions (mis.py's convention).
+    P["pdf_l"] = np.where(P["delta"], 1.0, P["pdf_l"])
+    P["pdf_e"] = np.where(P["delta"], 1.0, P["pdf_e"])
+    P["e_pos"] = np.where(P["point_light"], 1.0, P["e_pos"])     # pmf=1, delta position
+    P["nee_a"] = np.where(P["point_light"], 1.0, P["nee_a"])
+    P["cos_fwd"][:, 0] = np.where(P["point_light"], 1.0, P["cos_fwd"][:, 0])
+    return P
+
+
+def strategy_valid(P, k, s, light_image):
+    t = k + 1 - s
+    ok = np.ones(N, bool)
+    if t == 1 and not light_image:
+        return ~ok
+    if s == 0:
+        return ~P["point_light"]
+    if k == 1 and s == 1:                       # (1,1): emitter through the pinhole
+        return ~P["point_light"]
+    # the connection edge (x_{s-1}, x_s) needs both ends non-delta
+    if s - 1 >= 1:
+        ok &= ~P["delta"][:, s - 1]
+    if s <= k - 1:
+        ok &= ~P["delta"][:, s]
+    return ok
+
+
+def brute_force_pdf(P, k, s):
+    """Product of the area pdfs of strategy s (x_k's pinhole delta is common)."""
+    p = np.ones(N)
+    for i in range(s):                          # light side x_0 .. x_{s-1}
+        if i == 0:
+            p *= P["nee_a"] if (s == 1 and k > 1) else P["e_pos"]
+        elif i == 1:
+            # emission direction pdf: pdf_l[0] plays pdf_dir
+            p *= P["pdf_l"][:, 0] * P["cos_bwd"][:, 0] / P["dist2"][:, 0]
+        else:
+            p *= P["pdf_l"][:, i - 1] * P["cos_bwd"][:, i - 1] / P["dist2"][:, i - 1]
+    for i in range(s, k):                       # camera side x_s .. x_{k-1}
+        if i == k - 1:
+            p *= P["cam_w"] * P["cos_fwd"][:, k - 1] / P["dist2"][:, k - 1]
+        else:
+            p *= P["pdf_e"][:, i + 1] * P["cos_fwd"][:, i] / P["dist2"][:, i]
+    return p
+
+
+def F(x):
+    return mi.Float(np.asarray(x, dtype=np.float32))
+
+
+def B(x):
+    return mi.Bool(np.asarray(x, dtype=bool))
+
+
+def chain_weights(P, k, h, light_image):
+    """Weights of all strategies as the engine computes them (mis.py)."""
+    emission_pdf = F(P["e_pos"] * P["pdf_l"][:, 0])
+    # light subpath: states at x_1 .. x_{k-1}
+    light = {}
+    d_vc = mis.light_start(h, emission_pdf, F(P["cos_fwd"][:, 0]), B(P["point_light"]))
+    d_vcm, d_vc = mis.light_first_hit(h, d_vc, F(P["nee_a"]), emission_pdf,
+                                      F(P["dist2"][:, 0]), F(P["cos_bwd"][:, 0]))
+    for i in range(1, k):
+        light[i] = (d_vcm, d_vc)
+        if i + 1 < k:
+            d_vcm, d_vc = mis.after_scatter(h, d_vcm, d_vc, F(P["cos_fwd"][:, i]),
+                                            F(P["pdf_l"][:, i]), F(P["pdf_e"][:, i]),
+                                            B(P["delta"][:, i]))
+            d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, i]), F(P["cos_bwd"][:, i]))
+    # camera subpath: states at x_{k-1} .. x_0
+    cam = {}
+    d_vcm, d_vc = mis.camera_start(h, F(P["cam_w"]), 1.0, light_image)
+    d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, k - 1]), F(P["cos_fwd"][:, k - 1]))
+    for i in range(k - 1, -1, -1):
+        cam[i] = (d_vcm, d_vc)
+        if i > 0:
+            d_vcm, d_vc = mis.after_scatter(h, d_vcm, d_vc, F(P["cos_bwd"][:, i - 1]),
+                                            F(P["pdf_e"][:, i]), F(P["pdf_l"][:, i]),
+                                            B(P["delta"][:, i]))
+            d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, i - 1]), F(P["cos_fwd"][:, i - 1]))
+
+    w = {}
+    for s in range(0, k + 1):
+        t = k + 1 - s
+        if s == 0:
+            dv = cam[0]
+            direct = F(P["e_pos"]) if k == 1 else F(P["nee_a"])
+            if k == 1 and not light_image:
+                direct = F(np.zeros(N))
+            w[s] = mis.weight_emission_hit(h, dv[0], dv[1], direct, emission_pdf)
+        elif s == 1 and t == 1:
+            cam_a = F(P["cam_w"] * P["cos_fwd"][:, 0] / P["dist2"][:, 0])
+            w[s] = mis.weight_emitter_to_camera(h, cam_a, F(P["e_pos"]))
+        elif s == 1:
+            dv = cam[1]
+            bsdf_pdf = np.where(P["point_light"], 0.0, P["pdf_e"][:, 1])
+            nee_w = P["nee_a"] * P["dist2"][:, 0] / P["cos_fwd"][:, 0]
+            w[s] = mis.weight_nee(h, dv[0], dv[1], F(bsdf_pdf), F(nee_w), emission_pdf,
+                                  F(P["cos_bwd"][:, 0]), F(P["cos_fwd"][:, 0]), F(P["pdf_l"][:, 1]))
+        elif t == 1:
+            lv = light[k - 1]
+            cam_a = F(P["cam_w"] * P["cos_fwd"][:, k - 1] / P["dist2"][:, k - 1])
+            w[s] = mis.weight_light_to_camera(h, lv[0], lv[1], cam_a, F(P["pdf_e"][:, k - 1]))
+        else:
+            lv, cv = light[s - 1], cam[s]
+            cam_pdf_a = P["pdf_e"][:, s] * P["cos_fwd"][:, s - 1] / P["dist2"][:, s - 1]
+            light_pdf_a = P["pdf_l"][:, s - 1] * P["cos_bwd"][:, s - 1] / P["dist2"][:, s - 1]
+            w[s] = mis.weight_connect(h, lv[0], lv[1], cv[0], cv[1], F(cam_pdf_a),
+                                      F(P["pdf_l"][:, s]), F(light_pdf_a), F(P["pdf_e"][:, s - 1]))
+    return {s: np.array(v, dtype=np.float64) for s, v in w.items()}
+
+
+@pytest.mark.parametrize("heuristic", ["power", "balance", "uniform"])
+@pytest.mark.parametrize("light_image", [True, False])
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 5, 6])
+def test_weights_sum_to_one_and_match_brute_force(heuristic, light_image, k):
+    rng = np.random.default_rng(1000 * k + 7)
+    P = random_path(rng, k)
+    h = mis.Heuristic(heuristic)
+    w = chain_weights(P, k, h, light_image)
+    valid = {s: strategy_valid(P, k, s, light_image) for s in range(k + 1)}
+    pdfs = {s: brute_force_pdf(P, k, s) for s in range(k + 1)}
+    hp = {s: np.where(valid[s], (pdfs[s] ** 2 if heuristic == "power" else
+                                 pdfs[s] if heuristic == "balance" else 1.0), 0.0)
+          for s in range(k + 1)}
+    denom = sum(hp.values())
+    total = np.zeros(N)
+    any_valid = np.zeros(N, bool)
+    for s in range(k + 1):
+        ws = np.where(valid[s], w[s], 0.0)      # invalid strategies never contribute
+        assert np.all(np.isfinite(ws))
+        expected = np.where(valid[s], hp[s] / np.where(denom > 0, denom, 1), 0.0)
+        np.testing.assert_allclose(ws, expected, rtol=1e-4, atol=1e-6,
+                                   err_msg="strategy s=%d, t=%d" % (s, k + 1 - s))
+        total += ws
+        any_valid |= valid[s]
+    np.testing.assert_allclose(total[any_valid], 1.0, atol=1e-4)
