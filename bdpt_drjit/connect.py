@@ -76,7 +76,10 @@ def next_event(ctx, si, bsdf, vertex: Vertex, sample, active):
         # strategy and the light subpaths can only query the former, and for some
         # shapes (a sphere seen from inside) the two differ slightly.  Equal pdfs
         # in every strategy keep the weights summing to one.
-        nee_pdf = dr.select(ds.delta, ds.pdf, scene.pdf_emitter_direction(si, ds, active & ~ds.delta))
+        # A delta-position emitter's pdf is the pmf per unit *area* measure; in solid
+        # angle at z_{t-1} it becomes pmf * d^2 (cos_light = 1), as in SmallVCM.
+        nee_pdf = dr.select(ds.delta, ds.pdf * dr.square(ds.dist),
+                            scene.pdf_emitter_direction(si, ds, active & ~ds.delta))
         contrib *= mis.weight_nee(ctx.h, vertex.d_vcm, vertex.d_vc, bsdf_pdf, nee_pdf,
                                   emission_pdf, cos_cam, cos_light, bsdf_rev)
     return dr.select(active, finite(contrib), 0.0)
