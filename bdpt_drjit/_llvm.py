@@ -60,3 +60,10 @@ def check(variant: str) -> None:
         raise LLVMError("Dr.Jit loaded LLVM %s, but Dr.Jit 1.5 needs LLVM >= %d "
                         "(older versions abort with 'Cannot select ... fminimum'). %s"
                         % (".".join(map(str, version)), MIN_LLVM, FIX))
+
+
+if __name__ == "__main__":          # used by ./dev: exit 0 if a usable LLVM exists
+    ok = os.environ.get("DRJIT_LIBLLVM_PATH") or any(v >= MIN_LLVM for v, _ in _candidates())
+    if not ok:
+        print("No libLLVM >= %d found. %s" % (MIN_LLVM, FIX), file=sys.stderr)
+    sys.exit(0 if ok else 1)
