@@ -120,11 +120,12 @@ class Emitters:
         return dr.gather(mi.UInt32, self.index_of_id, ident, active)
 
     def pdf_direction(self, kind, cos_cutoff, n, d):
-        """Emission-direction pdf (solid angle) of direction d leaving y_0."""
-        cos_t = dr.dot(n, d)
-        cone = dr.select(cos_t >= cos_cutoff,
-                         dr.rcp(2.0 * dr.pi * (1.0 - cos_cutoff)), 0.0)
-        return dr.select(kind == AREA, dr.maximum(cos_t, 0.0) * dr.inv_pi,
+        """Emission-direction pdf (solid angle) of direction d leaving y_0.
+
+        For a spot the cone pdf is constant wherever the spot emits at all, so no
+        axis is needed (Mitsuba's direct-sampling records carry none)."""
+        cone = dr.rcp(2.0 * dr.pi * (1.0 - cos_cutoff))
+        return dr.select(kind == AREA, dr.maximum(dr.dot(n, d), 0.0) * dr.inv_pi,
                          dr.select(kind == SPOT, cone, 0.25 * dr.inv_pi))
 
     def emission_pdfs(self, emitter, n, d_out, active=True):

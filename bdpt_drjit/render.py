@@ -110,7 +110,7 @@ class PassContext:
             return False
         if st.hide_emitters and k == 1:
             return False
-        if s >= 1 and self.emitters.count == 0:
+        if self.emitters.count == 0:
             return False
         return True
 
@@ -206,7 +206,9 @@ class Renderer:
         if self.pixels * per_pass <= max_lanes or self.settings.samples_per_pass:
             done = 0
             while done < self.spp:
-                n = min(per_pass, self.spp - done)
+                # Some samplers round the count (orthogonal: to a prime squared); a
+                # pass then takes what the sampler accepts, as Mitsuba's render does.
+                n = self._accepted_count(min(per_pass, self.spp - done))
                 passes.append((0, self.pixels, n))
                 done += n
         else:                          # very large film: pixel ranges at 1 spp
@@ -215,6 +217,11 @@ class Renderer:
                 for start in range(0, self.pixels, chunk):
                     passes.append((start, min(chunk, self.pixels - start), 1))
         self.plan = passes
+
+    def _accepted_count(self, n: int) -> int:
+        sampler = self.sensor.sampler().clone()
+        sampler.set_sample_count(n)
+        return sampler.sample_count()
 
     @property
     def done(self) -> bool:

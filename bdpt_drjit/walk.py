@@ -55,8 +55,11 @@ def trace_light_subpaths(ctx, max_vertex: int | None) -> list[Vertex]:
     sampler, scene = ctx.light_sampler, ctx.scene
     es = ctx.emitters.sample_emission(ctx.time, ctx.wavelengths, sampler.next_1d(),
                                       sampler.next_2d(), sampler.next_2d())
+    # Samples are drawn whether or not a strategy is enabled, so that options
+    # (hide_emitters, light_image, technique) keep the same random numbers.
+    u_cam = sampler.next_2d()
     if ctx.enabled(1, 1):
-        connect.emitter_to_camera(ctx, es, sampler.next_2d())
+        connect.emitter_to_camera(ctx, es, u_cam)
     d_vc = mis.light_start(ctx.h, es.emission_pdf, es.cos_emit, es.delta_pos)
     d_vcm = mi.Float(0.0)
     it0 = dr.zeros(mi.Interaction3f)
@@ -86,9 +89,9 @@ def trace_light_subpaths(ctx, max_vertex: int | None) -> list[Vertex]:
         connectible = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         vertex = Vertex(pi=pi, ray=mi.Ray3f(ray), beta=beta, d_vcm=d_vcm, d_vc=d_vc,
                         connectible=connectible)
+        u_cam = sampler.next_2d()
         if ctx.enabled(i + 1, 1):
-            connect.light_vertex_to_camera(ctx, si, bsdf, vertex, i + 1, sampler.next_2d(),
-                                           connectible)
+            connect.light_vertex_to_camera(ctx, si, bsdf, vertex, i + 1, u_cam, connectible)
         if max_vertex is None or i < max_vertex:
             prev_p = si.p
             ray, d_vcm, d_vc, beta, alpha, eta, active = _scatter(
@@ -136,8 +139,9 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None):
             c = connect.emission_hit(ctx, si, beta, d_vcm, d_vc, prev, active)
             radiance += c
             ctx.film.put_strategy(ctx.film.strategy_block(0, j + 1), cam.pos, ray.wavelengths, c, active)
+        u_light = sampler.next_2d()
         if ctx.enabled(1, j + 1):
-            c = connect.next_event(ctx, si, bsdf, vertex, sampler.next_2d(), connectible)
+            c = connect.next_event(ctx, si, bsdf, vertex, u_light, connectible)
             radiance += c
             ctx.film.put_strategy(ctx.film.strategy_block(1, j + 1), cam.pos, ray.wavelengths, c, active)
         if max_vertex is None or j < max_vertex:

@@ -1,0 +1,7 @@
+"""``python -m bdpt_drjit ...``: the same as the ``bdpt`` command."""
+import sys
+
+from .cli import main
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,170 @@
+"""Options behave as documented; the plugin routes agree; bad input is refused."""
+import warnings
+
+import numpy as np
+import pytest
+
+import drjit as dr
+import mitsuba as mi
+import bdpt_drjit
+from conftest import assert_statistically_equal, mitsuba_render, scene_path
+
+
+@pytest.fixture(scope="module")
+def box():
+    return mi.load_file(scene_path("cornell-box.xml"), resx=16, resy=16)
+
+
+def test_three_routes_give_the_same_image(box):
+    """bdpt_drjit.render, mi.render with a bdpt integrator, and an XML scene whose
+    integrator is bdpt: same seed, same image (up to float atomics: splats and
+    filter footprints are scatter-added in a nondeterministic order, ~1e-7)."""
+    direct = bdpt_drjit.render(box, spp=8, seed=5, max_depth=4).image
+    via_dict = mi.render(box, integrator=mi.load_dict({"type": "bdpt", "max_depth": 4}), spp=8, seed=5)
+    xml_scene = mi.load_file(scene_path("cornell-box.xml"), resx=16, resy=16,
+                             integrator="bdpt", max_depth=4)
+    via_xml = mi.render(xml_scene, spp=8, seed=5)
+    np.testing.assert_allclose(direct, np.array(via_dict), rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(direct, np.array(via_xml), rtol=1e-5, atol=1e-7)
+
+
+def test_strategy_images_sum_to_image(box):
+    res = bdpt_drjit.render(box, spp=8, seed=1, max_depth=5, strategy_images=True)
+    assert set(res.strategies) == {(s, t) for k in range(1, 6) for s in range(k + 1)
+                                   for t in [k + 1 - s]}
+    total = sum(res.strategies.values())
+    np.testing.assert_allclose(total, res.image, rtol=1e-4, atol=1e-5)
+    for img in res.strategies.values():
+        assert np.isfinite(img).all() and img.min() >= 0
+
+
+def test_max_depth_0_1_2(box):
+    assert bdpt_drjit.render(box, spp=4, max_depth=0).image.max() == 0
+    # max_depth 1: only emitters seen directly, exactly what Mitsuba's path shows
+    ours = [bdpt_drjit.render(box, spp=16, seed=s, max_depth=1).image for s in range(8)]
+    ref = [mitsuba_render(box, "path", 16, seed=50 + s, max_depth=1) for s in range(8)]
+    assert_statistically_equal(ours, ref, what="max_depth=1")
+    # max_depth 2: direct illumination
+    ours = [bdpt_drjit.render(box, spp=16, seed=s, max_depth=2).image for s in range(8)]
+    ref = [mitsuba_render(box, "path", 64, seed=50 + s, max_depth=2) for s in range(8)]
+    assert_statistically_equal(ours, ref, what="max_depth=2")
+
+
+def test_hide_emitters(box):
+    shown = bdpt_drjit.render(box, spp=16, seed=3, max_depth=3, strategy_images=True)
+    hidden = bdpt_drjit.render(box, spp=16, seed=3, max_depth=3, hide_emitters=True,
+                               strategy_images=True)
+    assert (0, 2) not in hidden.strategies and (1, 1) not in hidden.strategies
+    # Everything but the directly seen emitter is unchanged, sample for sample.
+    direct = shown.strategies[(0, 2)] + shown.strategies[(1, 1)]
+    np.testing.assert_allclose(hidden.image, shown.image - direct, rtol=1e-4, atol=1e-4)
+    ref = mitsuba_render(box, "path", 64, seed=0, max_depth=3, hide_emitters=True)
+    assert ref[0:3].max() < 1.0 and hidden.image[0:3].max() < 1.0
+
+
+def test_light_image_off_and_technique(box):
+    res = bdpt_drjit.render(box, spp=8, max_depth=4, light_image=False, strategy_images=True)
+    assert all(t >= 2 for (_, t) in res.strategies)
+    only = bdpt_drjit.render(box, spp=8, max_depth=4, technique="1,2", strategy_images=True)
+    assert set(only.strategies) == {(1, 2)}
+    with pytest.raises(ValueError, match="light_image"):
+        bdpt_drjit.render(box, spp=1, technique=(2, 1), light_image=False)
+    with pytest.raises(ValueError, match="technique"):
+        bdpt_drjit.render(box, spp=1, technique="x")
+
+
+def test_bad_settings(box):
+    for kwargs, word in [({"max_depth": -2}, "max_depth"), ({"mis": "nope"}, "heuristic"),
+                         ({"rr_depth": 0}, "rr_depth")]:
+        with pytest.raises(ValueError, match=word):
+            bdpt_drjit.render(box, spp=1, **kwargs)
+    with pytest.raises(ValueError, match="spp"):
+        bdpt_drjit.Renderer(box, spp=-1)
+    with pytest.raises(RuntimeError, match="unknown parameter 'maxdepth'"):  # Mitsuba wraps it
+        mi.load_dict({"type": "bdpt", "maxdepth": 3})
+
+
+def _scene(emitter=None, sensor="perspective"):
+    d = {"type": "scene",
+         "floor": {"type": "rectangle", "bsdf": {"type": "diffuse"}},
+         "sensor": {"type": sensor, "to_world": mi.ScalarTransform4f().look_at(
+             origin=[0, 0, 3], target=[0, 0, 0], up=[0, 1, 0]),
+             "film": {"type": "hdrfilm", "width": 8, "height": 8}}}
+    if emitter:
+        d["light"] = emitter
+    return mi.load_dict(d)
+
+
+@pytest.mark.parametrize("emitter, name", [
+    ({"type": "constant"}, "constant"),
+    ({"type": "envmap", "bitmap": mi.Bitmap(np.ones((4, 8, 3), dtype=np.float32))}, "envmap"),
+    ({"type": "directional", "direction": [0, 0, -1]}, "directional"),
+])
+def test_unsupported_emitters_raise_naming_the_plugin(emitter, name):
+    with pytest.raises(bdpt_drjit.UnsupportedPluginError, match="'%s'" % name):
+        bdpt_drjit.render(_scene(emitter), spp=1)
+
+
+def test_unsupported_sensor_raises():
+    scene = _scene({"type": "point", "position": [0, 0, 1]}, sensor="orthographic")
+    with pytest.raises(bdpt_drjit.UnsupportedPluginError, match="orthographic|Orthographic"):
+        bdpt_drjit.render(scene, spp=1)
+
+
+def test_no_emitters_renders_black_with_a_warning():
+    scene = mi.load_file(scene_path("no-emitters.xml"), resx=8, resy=8)
+    with pytest.warns(UserWarning, match="no emitters"):
+        res = bdpt_drjit.render(scene, spp=2, max_depth=4)
+    assert res.image.max() == 0
+
+
+def test_point_and_spot_lights_direct(box):
+    """Delta-position emitters: NEE and light tracing agree with Mitsuba's path."""
+    T = mi.ScalarTransform4f
+    for light in [{"type": "point", "position": [0, 0.5, 0.3], "intensity": {"type": "rgb", "value": 3}},
+                  {"type": "spot", "to_world": T().look_at(origin=[0, 0.9, 0], target=[0, 0, 0], up=[0, 0, 1]),
+                   "cutoff_angle": 40, "intensity": {"type": "rgb", "value": 5}}]:
+        scene = mi.load_dict({
+            "type": "scene",
+            "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90),
+                      "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.7}}},
+            "back": {"type": "rectangle", "to_world": T().translate([0, 0, -1]),
+                     "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}}},
+            "light": light,
+            "sensor": {"type": "perspective", "fov": 60,
+                       "to_world": T().look_at(origin=[0, 0.8, 2], target=[0, 0, -0.3], up=[0, 1, 0]),
+                       "film": {"type": "hdrfilm", "width": 16, "height": 16, "rfilter": {"type": "box"}}}})
+        ours = [bdpt_drjit.render(scene, spp=16, seed=s, max_depth=3).image for s in range(10)]
+        ref = [mitsuba_render(scene, "path", 64, seed=70 + s, max_depth=3) for s in range(10)]
+        assert_statistically_equal(ours, ref, what=light["type"])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sampler", ["independent", "stratified", "multijitter", "orthogonal", "ldsampler"])
+def test_every_sampler_is_unbiased(sampler):
+    """The sensor's sampler drives the camera subpaths (and, seeded differently, the
+    light subpaths): stratified and low-discrepancy samplers must stay unbiased."""
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=16, resy=16, sampler=sampler, spp=16)
+    ours = [bdpt_drjit.render(scene, spp=16, seed=s, max_depth=4).image for s in range(10)]
+    ref = [mitsuba_render(scene, "path", 64, seed=90 + s, max_depth=4) for s in range(10)]
+    assert_statistically_equal(ours, ref, what=sampler)
+
+
+def test_result_does_not_depend_on_pass_split(box):
+    """The same seed split into different passes gives statistically equal images."""
+    one = [bdpt_drjit.render(box, spp=16, seed=s, max_depth=4).image for s in range(10)]
+    many = [bdpt_drjit.render(box, spp=16, seed=s, max_depth=4, samples_per_pass=3).image
+            for s in range(10)]
+    assert bdpt_drjit.Renderer(box, spp=16, samples_per_pass=3).plan[-1][2] == 1  # 5 x 3 + 1
+    assert_statistically_equal(one, many, what="pass split")
+
+
+def test_scalar_variant_is_refused():
+    from bdpt_drjit.render import check_variant
+    variant = mi.variant()
+    try:
+        mi.set_variant("scalar_rgb")
+        with pytest.raises(RuntimeError, match="JIT variant"):
+            check_variant()
+    finally:
+        mi.set_variant(variant)
