@@ -19,9 +19,13 @@ _prepare_llvm()
 import mitsuba as mi  # noqa: E402
 
 if mi.variant() is None:
-    mi.set_variant("llvm_ad_rgb")
+    try:
+        mi.set_variant("llvm_ad_rgb")
+    except ImportError:      # no usable LLVM: render() reports it with install advice
+        pass
 
 from .emitters import UnsupportedPluginError  # noqa: E402
+from .exr import read_exr, write_exr  # noqa: E402
 from .mis import HEURISTICS  # noqa: E402
 from .render import Renderer, RenderResult, Settings, render  # noqa: E402
 
@@ -31,6 +35,8 @@ __version__ = "0.1.0"
 def register() -> None:
     """Register the ``bdpt`` integrator with Mitsuba for the current variant
     (done on import; call again after ``mi.set_variant``)."""
+    if mi.variant() is None:
+        return
     from integrators.bdpt import register as _register
     _register()
 
@@ -38,4 +44,4 @@ def register() -> None:
 register()
 
 __all__ = ["render", "Renderer", "RenderResult", "Settings", "register",
-           "UnsupportedPluginError", "HEURISTICS"]
+           "UnsupportedPluginError", "HEURISTICS", "read_exr", "write_exr"]

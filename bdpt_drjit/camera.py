@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from .emitters import UnsupportedPluginError
+from .emitters import UnsupportedPluginError, plugin_name
 
 
 @dataclass
@@ -27,7 +27,7 @@ def check_sensor(sensor: mi.Sensor) -> None:
     if sensor.class_name() != "PerspectiveCamera":
         raise UnsupportedPluginError(
             "bdpt: sensor plugin '%s' is not supported; only 'perspective' (a pinhole "
-            "camera, whose pdfs bdpt models exactly) is" % sensor.class_name())
+            "camera, whose pdfs bdpt models exactly) is" % plugin_name(sensor))
 
 
 def film_grid(film: mi.Film):

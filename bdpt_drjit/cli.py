@@ -40,8 +40,9 @@ PROG = "bdpt"
 DEFAULT_VARIANT = "llvm_ad_rgb"
 COMMANDS = ("render", "merge", "info")
 # With --time or --checkpoint and no --samples-per-pass, passes are kept small
-# (at most spp/16 samples per pixel and about this many lanes) so there are many.
-_TIMED_PASS_LANES = 1 << 20
+# (at most spp/16 samples per pixel and about this many lanes, fewer on the CPU
+# where a lane costs more) so there are many.
+_TIMED_PASS_LANES = {"llvm": 1 << 16, "cuda": 1 << 20}
 _SUPPORTED_EMITTERS = {"AreaLight": "area", "PointLight": "point", "SpotLight": "spot"}
 _SUPPORTED_SENSORS = {"PerspectiveCamera": "perspective"}
 _BSDF_NAMES = {
@@ -327,7 +328,7 @@ def setup_variant(variant: str):
     except ImportError as e:
         msg = _one_line(e)
         if "LLVM" in msg:
-            raise CLIError("cannot use variant %s: %s. %s" % (variant, msg, _llvm.FIX)) from None
+            raise CLIError("cannot use variant %s: %s. %s" % (variant, msg.rstrip("."), _llvm.FIX)) from None
         if "CUDA" in msg:
             raise CLIError("cannot use variant %s: no usable CUDA GPU/driver (%s)"
                            % (variant, msg)) from None
@@ -543,7 +544,8 @@ def cmd_render(args) -> int:
     params = _scene_params(args)
     scene = load_scene(mi, scene_path, params)
 
-    settings, integrator_name = _integrator_defaults(scene)
+    settings, _ = _integrator_defaults(scene)
+    chose_pass_size = args.samples_per_pass is not None or "samples_per_pass" in settings
     cli_settings = {"max_depth": args.max_depth, "rr_depth": args.rr_depth, "mis": args.mis,
                     "technique": args.technique, "light_image": args.light_image,
                     "hide_emitters": args.hide_emitters,
@@ -553,12 +555,12 @@ def cmd_render(args) -> int:
     timed = args.time is not None or args.checkpoint is not None
 
     renderer = _make_renderer(scene, args.spp, args.seed, args.strategies, settings)
-    if timed and args.samples_per_pass is None and renderer.plan[0][1] == renderer.pixels:
+    if timed and not chose_pass_size and renderer.plan[0][1] == renderer.pixels:
         # Many small passes, so that the budget and checkpoints are honoured closely;
         # never more per pass than the memory budget allows.
         auto = renderer.plan[0][2]
         per_pass = max(1, min(renderer.spp // 16, auto,
-                              _TIMED_PASS_LANES // renderer.pixels))
+                              _TIMED_PASS_LANES[args.variant.split("_")[0]] // renderer.pixels))
         if per_pass != auto:
             settings["samples_per_pass"] = per_pass
             renderer = _make_renderer(scene, args.spp, args.seed, args.strategies, settings)
@@ -608,7 +610,7 @@ def cmd_render(args) -> int:
             renderer.run_pass()
             now = time.perf_counter()
             progress.update(now - t0)
-            if stop.signal is not None:
+            if stop.signal is not None and not renderer.done:
                 stop_reason = "interrupted"
                 break
             if args.time is not None and now - t0 >= args.time and not renderer.done:

@@ -34,14 +34,16 @@ def _count(ctx, mask):
     ctx.rays += dr.select(mask, 1, 0)
 
 
-def emission_hit(ctx, si, beta, d_vcm, d_vc, prev: mi.Interaction3f | None, active):
+def emission_hit(ctx, si, beta, d_vcm, d_vc, prev: mi.Interaction3f | None, active, lw=None):
     """s = 0, t = j + 1: the camera ray arriving at z_j hit an area emitter.
 
     ``prev`` is z_{j-1} (None when it is the pinhole, j = 1)."""
     emitter = si.emitter(ctx.scene, active)
     hit = active & (emitter != None)  # noqa: E711  (Dr.Jit pointer comparison)
     contrib = beta * emitter.eval(si, hit)
-    if ctx.use_mis:
+    if ctx.use_mis and ctx.h.is_lafortune:
+        contrib *= mis.weight_lafortune(lw, None, "hit")
+    elif ctx.use_mis:
         n = si.sh_frame.n
         to_prev = si.to_world(si.wi)
         pos_pdf, emission_pdf, _, _ = ctx.emitters.emission_pdfs(emitter, n, to_prev, hit)
@@ -68,7 +70,10 @@ def next_event(ctx, si, bsdf, vertex: Vertex, sample, active):
     active = active & (spectrum_nonzero(contrib))
     _count(ctx, active)
     active = active & (~scene.ray_test(si.spawn_ray_to(ds.p), active))
-    if ctx.use_mis:
+    if ctx.use_mis and ctx.h.is_lafortune:
+        contrib *= mis.weight_lafortune(vertex.lw, mis.lafortune_specularity(bsdf.flags()),
+                                        "nee", ds.delta)
+    elif ctx.use_mis:
         bsdf_pdf = dr.select(ds.delta, 0.0, bsdf.pdf(RADIANCE, si, wo, active))
         bsdf_rev = reverse_pdf(bsdf, IMPORTANCE, si, wo, active)
         _, emission_pdf, cos_light, _ = ctx.emitters.emission_pdfs(ds.emitter, ds.n, -ds.d, active)
@@ -130,11 +135,12 @@ def emitter_to_camera(ctx, es, sample):
     ctx.film.splat(1, ds.uv, ctx.wavelengths, finite(contrib), active)
 
 
-def connect_vertices(ctx, light: Vertex, cam: Vertex):
-    """s, t >= 2: connect light vertex y_{s-1} and camera vertex z_{t-1}."""
+def connect_vertices(ctx, light: Vertex, cam: Vertex, si_c, bsdf_c):
+    """s, t >= 2: connect light vertex y_{s-1} and camera vertex z_{t-1}
+    (``si_c``/``bsdf_c``: z_{t-1} rebuilt once for all light vertices)."""
     active = light.connectible & cam.connectible
-    si_l, si_c = light.interaction(active), cam.interaction(active)
-    bsdf_l, bsdf_c = si_l.bsdf(), si_c.bsdf()
+    si_l = light.interaction(active)
+    bsdf_l = si_l.bsdf()
     d = si_l.p - si_c.p
     dist2 = dr.squared_norm(d)
     w = d * dr.rsqrt(dist2)                     # from z_{t-1} toward y_{s-1}
@@ -149,7 +155,9 @@ def connect_vertices(ctx, light: Vertex, cam: Vertex):
     active = active & (spectrum_nonzero(contrib))
     _count(ctx, active)
     active = active & (~ctx.scene.ray_test(si_c.spawn_ray_to(si_l.p), active))
-    if ctx.use_mis:
+    if ctx.use_mis and ctx.h.is_lafortune:
+        contrib *= mis.weight_lafortune(cam.lw, mis.lafortune_specularity(bsdf_c.flags()), "connect")
+    elif ctx.use_mis:
         pdf_c = bsdf_c.pdf(RADIANCE, si_c, wc, active)
         pdf_l = bsdf_l.pdf(IMPORTANCE, si_l, wl, active)
         rev_c = reverse_pdf(bsdf_c, IMPORTANCE, si_c, wc, active)

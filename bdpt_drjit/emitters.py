@@ -28,7 +28,11 @@ _KINDS = {"AreaLight": AREA, "PointLight": POINT, "SpotLight": SPOT}
 _XML_NAMES = {"AreaLight": "area", "PointLight": "point", "SpotLight": "spot",
               "ConstantBackgroundEmitter": "constant", "EnvironmentMapEmitter": "envmap",
               "DirectionalEmitter": "directional", "Projector": "projector",
-              "DirectionalArea": "directionalarea", "SkyEmitter": "sunsky"}
+              "DirectionalArea": "directionalarea", "SkyEmitter": "sunsky",
+              "PerspectiveCamera": "perspective", "OrthographicCamera": "orthographic",
+              "ThinLensCamera": "thinlens", "RadianceMeter": "radiancemeter",
+              "IrradianceMeter": "irradiancemeter", "BatchSensor": "batch",
+              "DistantSensor": "distant"}
 
 
 class UnsupportedPluginError(ValueError):

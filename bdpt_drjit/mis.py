@@ -33,7 +33,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-HEURISTICS = ("power", "balance", "uniform")
+HEURISTICS = ("power", "balance", "uniform", "lafortune")
 
 
 class Heuristic:
@@ -43,6 +43,7 @@ class Heuristic:
     ``uniform``: h(x) = 1 for x > 0, so every strategy that can produce the path gets
     the same weight (Adamsen 2009 section 7.3).  All three are multiplicative,
     h(ab) = h(a) h(b), which is what lets the ratio chains apply h factor by factor.
+    ``lafortune`` is not a ratio heuristic: see ``weight_lafortune``.
     """
 
     def __init__(self, name: str = "power"):
@@ -50,6 +51,10 @@ class Heuristic:
             raise ValueError("bdpt: unknown mis heuristic %r (choose one of %s)"
                              % (name, ", ".join(HEURISTICS)))
         self.name = name
+
+    @property
+    def is_lafortune(self) -> bool:
+        return self.name == "lafortune"
 
     def __call__(self, x):
         if self.name == "power":
@@ -197,3 +202,36 @@ def weight_connect(h: Heuristic, light_d_vcm, light_d_vc, cam_d_vcm, cam_d_vc,
     w_light = h(cam_bsdf_pdf_a) * (light_d_vcm + light_d_vc * h(light_bsdf_rev_w))
     w_camera = h(light_bsdf_pdf_a) * (cam_d_vcm + cam_d_vc * h(cam_bsdf_rev_w))
     return _weight(w_light + 1.0 + w_camera)
+
+
+# ---------------------------------------------------------------------------
+# Lafortune & Willems' specularity-based weights
+# ---------------------------------------------------------------------------
+
+def lafortune_specularity(bsdf_flags, delta_sampled=False):
+    """W(z) of a camera vertex (L&W 1993, "Selecting the weights"): the share of the
+    estimate that continues along the camera path rather than connecting at z.
+
+    1 where the path crossed z through a delta lobe (no connection can make such a
+    path); otherwise the BSDF's degree of specularity, here 1/2 if it has a glossy
+    lobe and 0 if all its lobes are diffuse.
+    """
+    glossy = mi.has_flag(bsdf_flags, mi.BSDFFlags.Glossy)
+    return dr.select(delta_sampled, 1.0, dr.select(glossy, 0.5, 0.0))
+
+
+def weight_lafortune(prod_before, w_here, strategy: str, delta_light=False):
+    """L&W weight of a strategy ending its camera subpath at z_{t-1}.
+
+    ``prod_before`` = prod_{m < t-1} W(z_m); ``w_here`` = W(z_{t-1}).  For a path of k
+    edges the weights telescope to one over s = 0 .. k-1:
+      s = 0 (emitter hit at z_k):     prod_{m <= k-1} W(z_m)
+      s >= 1 (connect at z_{t-1}):    prod_{m < t-1} W(z_m) * (1 - W(z_{t-1}))
+    A delta-position emitter cannot be hit, so NEE keeps the s = 0 share as well.
+    The light image (t = 1) is not part of the scheme (weight 0).
+    """
+    if strategy == "hit":
+        return prod_before
+    if strategy == "nee":
+        return prod_before * dr.select(delta_light, 1.0, 1.0 - w_here)
+    return prod_before * (1.0 - w_here)

@@ -22,6 +22,7 @@ class Vertex:
     d_vcm: mi.Float                    # MIS recursion state (mis.py)
     d_vc: mi.Float
     connectible: mi.Bool               # exists and has a non-delta BSDF lobe
+    lw: mi.Float = None                # camera vertices, mis="lafortune": prod of W before it
 
     def interaction(self, active) -> mi.SurfaceInteraction3f:
         return self.pi.compute_surface_interaction(self.ray, mi.RayFlags.All, active)

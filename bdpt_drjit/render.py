@@ -60,6 +60,8 @@ class Settings:
         if self.samples_per_pass < 0:
             raise ValueError("bdpt: samples_per_pass must be >= 0 (0 = automatic)")
         Heuristic(self.mis)          # validates the name
+        if self.mis == "lafortune":  # L&W's scheme has no light image (t = 1)
+            self.light_image = False
         if self.technique is not None:
             s, t = self.technique
             if s < 0 or t < 1:
@@ -94,6 +96,7 @@ class PassContext:
     camera_weight: mi.Spectrum = None
     rays: mi.UInt32 = None
     light_ratio: float = 1.0        # N_L / N_C
+    last_delta: mi.Bool = None      # whether the last BSDF sample was a delta lobe
 
     @property
     def use_mis(self) -> bool:
@@ -145,7 +148,11 @@ def _mix_seed(*values: int) -> int:
 
 def check_variant() -> None:
     variant = mi.variant()
-    if variant is None or not (variant.startswith("llvm_") or variant.startswith("cuda_")):
+    if variant is None:
+        from ._llvm import FIX, LLVMError
+        raise LLVMError("bdpt: no Mitsuba variant could be set (llvm_ad_rgb needs libLLVM "
+                        ">= 16). " + FIX)
+    if not (variant.startswith("llvm_") or variant.startswith("cuda_")):
         raise RuntimeError("bdpt: needs a JIT variant of Mitsuba (llvm_* or cuda_*), but the "
                            "current variant is %r; call mi.set_variant('llvm_ad_rgb') first" % variant)
     if "polarized" in variant:
@@ -200,10 +207,11 @@ class Renderer:
         """Split spp x pixels into passes of at most ``max_lanes`` lanes."""
         max_lanes = max(1024, self.settings.memory_budget // self._lane_bytes())
         max_lanes = min(max_lanes, 2 ** 31)
-        per_pass = self.settings.samples_per_pass or max(1, max_lanes // self.pixels)
+        # An explicit samples_per_pass is honoured up to the memory budget.
+        per_pass = min(self.settings.samples_per_pass or self.spp, max(1, max_lanes // self.pixels))
         per_pass = min(per_pass, self.spp)
         passes = []
-        if self.pixels * per_pass <= max_lanes or self.settings.samples_per_pass:
+        if self.pixels * per_pass <= max_lanes:
             done = 0
             while done < self.spp:
                 # Some samplers round the count (orthogonal: to a prime squared); a
@@ -281,17 +289,21 @@ class Renderer:
         # Stage 3: camera subpaths (+ s = 0 and s = 1).
         cam_vertices, radiance = trace_camera_subpaths(ctx, cam, max_cam)
 
-        # Stage 4: connections s, t >= 2.
+        # Stage 4: connections s, t >= 2, one kernel per camera vertex z_j that
+        # rebuilds z_j once and connects it to every light vertex y_i.
         for j, cv in enumerate(cam_vertices, start=1):
-            for i, lv in enumerate(light_vertices, start=1):
-                s, t = i + 1, j + 1
-                if not ctx.enabled(s, t):
-                    continue
-                c = connect.connect_vertices(ctx, lv, cv)
+            pairs = [(i + 1, lv) for i, lv in enumerate(light_vertices, start=1)
+                     if ctx.enabled(i + 1, j + 1)]
+            if not pairs:
+                continue
+            si_c = cv.interaction(cv.connectible)
+            bsdf_c = si_c.bsdf()
+            for s, lv in pairs:
+                c = connect.connect_vertices(ctx, lv, cv, si_c, bsdf_c)
                 radiance += c
-                self.film.put_strategy(self.film.strategy_block(s, t), cam.pos,
+                self.film.put_strategy(self.film.strategy_block(s, j + 1), cam.pos,
                                        cam.ray.wavelengths, c, True)
-                dr.eval(radiance, ctx.rays)
+            dr.eval(radiance, ctx.rays)
 
         # Stage 5: film.
         self.film.put_camera(cam.pos, cam.ray.wavelengths, radiance, 1.0)

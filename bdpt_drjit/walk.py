@@ -47,6 +47,7 @@ def _scatter(ctx, sampler, si, bsdf, mode_ctx, rev_ctx, d_vcm, d_vc, beta, alpha
         beta = beta * dr.rcp(q)
     active = active & (dr.max(mi.unpolarized_spectrum(beta)) > 0)
     ray = si.spawn_ray(wo)
+    ctx.last_delta = delta
     return ray, d_vcm, d_vc, beta, alpha, eta, active
 
 
@@ -114,6 +115,7 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None):
     beta, active = mi.Spectrum(cam.weight), mi.Bool(True)
     alpha, eta = dr.ones(mi.Spectrum), mi.Float(1.0)
     d_vcm, d_vc = mi.Float(0.0), mi.Float(0.0)
+    lw = mi.Float(1.0)               # mis="lafortune": prod of W(z_m) over m < j
     prev = None
     radiance = dr.zeros(mi.Spectrum, dr.width(ray.o))
     vertices: list[Vertex] = []
@@ -134,9 +136,10 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None):
             d_vcm, d_vc = mis.after_hit(ctx.h, d_vcm, d_vc, dr.squared_norm(si.p - prev.p), cos_in)
         bsdf = si.bsdf()
         connectible = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        vertex = Vertex(pi=pi, ray=ray, beta=beta, d_vcm=d_vcm, d_vc=d_vc, connectible=connectible)
+        vertex = Vertex(pi=pi, ray=ray, beta=beta, d_vcm=d_vcm, d_vc=d_vc, connectible=connectible,
+                        lw=lw)
         if ctx.enabled(0, j + 1):
-            c = connect.emission_hit(ctx, si, beta, d_vcm, d_vc, prev, active)
+            c = connect.emission_hit(ctx, si, beta, d_vcm, d_vc, prev, active, lw)
             radiance += c
             ctx.film.put_strategy(ctx.film.strategy_block(0, j + 1), cam.pos, ray.wavelengths, c, active)
         u_light = sampler.next_2d()
@@ -149,10 +152,12 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None):
             ray, d_vcm, d_vc, beta, alpha, eta, active = _scatter(
                 ctx, sampler, si, bsdf, RADIANCE, IMPORTANCE, d_vcm, d_vc, beta, alpha,
                 eta, active, j, importance=False)
+            if ctx.h.is_lafortune:
+                lw = lw * mis.lafortune_specularity(bsdf.flags(), ctx.last_delta)
         else:
             active = mi.Bool(False)
         sampler.schedule_state()
-        dr.eval(vertex, radiance, ray, d_vcm, d_vc, beta, alpha, eta, active, prev, ctx.rays)
+        dr.eval(vertex, radiance, ray, d_vcm, d_vc, beta, alpha, eta, active, prev, lw, ctx.rays)
         vertices.append(vertex)
         j += 1
     return vertices, radiance

@@ -169,3 +169,27 @@ def test_weights_sum_to_one_and_match_brute_force(heuristic, light_image, k):
         total += ws
         any_valid |= valid[s]
     np.testing.assert_allclose(total[any_valid], 1.0, atol=1e-4)
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 5])
+def test_lafortune_weights_sum_to_one(k):
+    """L&W's specularity-based weights over s = 0..k-1 sum to one for random
+    specularities, with delta vertices (W = 1) and point lights (s = 0 impossible)."""
+    rng = np.random.default_rng(k)
+    W = rng.choice([0.0, 0.5, 1.0], size=(N, k + 1))     # W(z_m), m = 1..k (index m)
+    point = rng.uniform(size=N) < 0.3
+    total = np.zeros(N)
+    for s in range(0, k):
+        t = k + 1 - s
+        prod = np.prod(W[:, 1:t - 1], axis=1) if t > 2 else np.ones(N)
+        if s == 0:
+            w = mis.weight_lafortune(F(np.prod(W[:, 1:k], axis=1)), None, "hit")
+            w = np.where(point, 0.0, np.array(w))          # a point light is never hit
+        elif s == 1:
+            w = np.array(mis.weight_lafortune(F(prod), F(W[:, t - 1]), "nee", B(point)))
+        else:
+            w = np.array(mis.weight_lafortune(F(prod), F(W[:, t - 1]), "connect"))
+        assert np.all(w >= 0)
+        total += w
+    # k = 1 with a point light: no strategy (a pinhole never sees a point light)
+    np.testing.assert_allclose(total, np.where(point & (k == 1), 0.0, 1.0), atol=1e-5)

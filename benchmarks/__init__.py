@@ -1,0 +1,1 @@
+"""Benchmarks of bdpt-drjit against Mitsuba 3 (see benchmarks/README.md and RESULTS.md)."""

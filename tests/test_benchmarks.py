@@ -1,0 +1,53 @@
+"""Smoke test of the benchmark suite: ``python -m benchmarks.run --smoke --out DIR``
+(2 scenes at 16x16, 2 spp levels, no RSS subprocesses) must exit 0 and write its
+results, charts and RESULTS.md into DIR, and nothing into the repository."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench-smoke")
+    pytest.importorskip("matplotlib")
+    proc = subprocess.run([sys.executable, "-m", "benchmarks.run", "--smoke", "--out", str(out)],
+                          cwd=str(ROOT), capture_output=True, text=True, timeout=300,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    return proc, out
+
+
+def test_smoke_exits_zero(smoke):
+    proc, _ = smoke
+    assert proc.returncode == 0, "benchmarks.run --smoke failed:\n%s\n%s" % (proc.stdout[-3000:],
+                                                                          proc.stderr[-3000:])
+
+
+def test_smoke_outputs(smoke):
+    proc, out = smoke
+    assert proc.returncode == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["mode"] == "smoke"
+    scenes = [s for s in res["scenes"] if s]
+    assert scenes, "no scene was benchmarked"
+    for s in scenes:
+        methods = {r["method"] for r in s["records"]}
+        assert {"bdpt-power", "path"} <= methods
+        for r in s["records"]:
+            assert r["time"] > 0 and r["relmse"] >= 0
+            assert r["nonfinite"] == 0, "%s %s: non-finite pixels" % (s["scene"], r["method"])
+        assert (out / "charts" / s["chart"]).stat().st_size > 0
+        assert (out / "charts" / s["weighting_chart"]).stat().st_size > 0
+        assert list((out / "refs").glob(s["scene"] + "_*.npy")) or s["reference"]["method"] == "exr"
+    assert res["throughput"]["ratio_samples"] > 0
+    assert (out / "charts" / "scaling_samples.png").exists()
+    assert (out / "charts" / "scaling_depth.png").exists()
+    for p in res["pyramids"]:
+        assert p is None or p["max_abs_sum_error"] < 1e-3 * max(1.0, p["image_mean"])
+    md = (out / "RESULTS.md").read_text()
+    assert "SMOKE" in md and "python -m benchmarks.run --smoke" in md

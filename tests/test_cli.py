@@ -1,0 +1,385 @@
+"""The ``bdpt`` command line, driven as a user would: ``python -m bdpt_drjit ...`` in
+a subprocess, on tiny images.  Also the EXR reader/writer (bdpt_drjit.exr)."""
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bdpt_drjit.exr import read_exr, read_layers, write_exr, write_layers
+
+ROOT = Path(__file__).resolve().parent.parent
+CORNELL = str(ROOT / "scenes" / "cornell-box.xml")
+NO_EMITTERS = str(ROOT / "scenes" / "no-emitters.xml")
+TINY = ["-D", "resx=16", "-D", "resy=16"]
+
+_SENSOR = ('<sensor type="%s"><film type="hdrfilm"><integer name="width" value="8"/>'
+           '<integer name="height" value="8"/><rfilter type="box"/></film></sensor>')
+SCENES = {
+    "constant.xml": '<scene version="3.0.0"><emitter type="constant"/>%s'
+                    '<shape type="sphere"/></scene>' % (_SENSOR % "perspective"),
+    "directional.xml": '<scene version="3.0.0"><emitter type="directional">'
+                       '<vector name="direction" value="0,-1,0"/></emitter>%s'
+                       '<shape type="sphere"/></scene>' % (_SENSOR % "perspective"),
+    "ortho.xml": '<scene version="3.0.0">%s<shape type="sphere"><emitter type="area"/>'
+                 '</shape></scene>' % (_SENSOR % "orthographic"),
+    "nosensor.xml": '<scene version="3.0.0"><shape type="sphere"><emitter type="area"/>'
+                    '</shape></scene>',
+    "malformed.xml": '<scene version="3.0.0"><shape type="sphere"></scene>',
+    "unknown-plugin.xml": '<scene version="3.0.0"><shape type="spherez"/></scene>',
+}
+
+
+def run_cli(*args, cwd=None, env=None, timeout=180):
+    full_env = dict(os.environ)
+    full_env.update(env or {})
+    return subprocess.run([sys.executable, "-m", "bdpt_drjit", *map(str, args)], cwd=cwd,
+                          env=full_env, capture_output=True, text=True, timeout=timeout)
+
+
+def ok(p):
+    assert p.returncode == 0, "exit %d\nstdout:\n%s\nstderr:\n%s" % (p.returncode, p.stdout, p.stderr)
+    assert "Traceback" not in p.stderr, p.stderr
+    return p
+
+
+def clean_error(p, *words):
+    """A non-zero exit with a one-line 'bdpt: error:' message naming the problem."""
+    assert p.returncode != 0, "expected a failure\nstdout:\n%s\nstderr:\n%s" % (p.stdout, p.stderr)
+    assert "Traceback" not in p.stderr, p.stderr
+    errors = [line for line in p.stderr.splitlines() if line.startswith("bdpt: error:")]
+    assert len(errors) == 1, p.stderr
+    for w in words:
+        assert w.lower() in errors[0].lower(), "%r not in %r" % (w, errors[0])
+    return errors[0]
+
+
+def written(folder):
+    return sorted(p.name for p in Path(folder).rglob("*")
+                  if p.is_file() and p.suffix != ".xml")
+
+
+@pytest.fixture
+def scenes(tmp_path):
+    d = tmp_path / "scenes"
+    d.mkdir()
+    for name, text in SCENES.items():
+        (d / name).write_text(text)
+    return d
+
+
+# -- render -----------------------------------------------------------------------------
+def test_render_writes_exr_png_and_strategies(tmp_path):
+    out = tmp_path / "out.exr"
+    out.write_bytes(b"not an exr: must be overwritten")
+    p = ok(run_cli("render", CORNELL, *TINY, "--spp", 8, "--seed", 5, "-o", out,
+                   "--strategies", cwd=tmp_path))
+    img, meta = read_exr(out)
+    assert img.shape == (16, 16, 3) and img.dtype == np.float32
+    assert np.all(np.isfinite(img))
+    assert 0.1 < img.mean() < 0.6          # the Cornell box is about 0.3
+    assert meta["spp"] == 8 and isinstance(meta["spp"], int)
+    assert meta["seed"] == 5 and meta["passes"] >= 1 and meta["render_time"] > 0
+    assert meta["scene"].endswith("cornell-box.xml") and meta["bdpt_version"]
+    assert meta["max_depth"] == 8          # from the scene's integrator
+    assert (tmp_path / "out.png").stat().st_size > 0
+    # Per-strategy layers add up to the image; the contact sheet has a row per k.
+    layers, smeta = read_layers(tmp_path / "out.strategies.exr")
+    assert smeta["spp"] == 8
+    np.testing.assert_allclose(layers[""], img)
+    strategies = {k: v for k, v in layers.items() if k}
+    assert "s1t2" in strategies and "s0t2" in strategies
+    np.testing.assert_allclose(sum(strategies.values()), img, rtol=1e-4, atol=1e-5)
+    import mitsuba as mi
+    sheet = np.array(mi.Bitmap(str(tmp_path / "out.strategies.png")))
+    kmax = max(int(k[1:].split("t")[0]) + int(k.split("t")[1]) - 1 for k in strategies)
+    assert sheet.shape[0] == 2 + kmax * (16 + 2)
+    # One summary line with spp, time, rate and the outputs.
+    summary = p.stdout.strip().splitlines()[-1]
+    assert "8 spp" in summary and "samples/s" in summary and str(out) in summary
+    assert not [f for f in written(tmp_path) if f.endswith(".tmp")]
+
+
+def test_render_default_scene_and_output_name(tmp_path):
+    ok(run_cli("render", *TINY, "--spp", 2, "--max-depth", 2, "-q", cwd=tmp_path))
+    img, meta = read_exr(tmp_path / "cornell-box.exr")
+    assert img.shape == (16, 16, 3) and meta["spp"] == 2 and meta["max_depth"] == 2
+    assert (tmp_path / "cornell-box.png").exists()
+
+
+def test_render_settings_and_res(tmp_path):
+    out = tmp_path / "t.exr"
+    ok(run_cli("render", CORNELL, "--res", "12x8", "--spp", 2, "--technique", "1,2",
+               "--mis", "balance", "--rr-depth", 3, "--hide-emitters", "-o", out))
+    img, meta = read_exr(out)
+    assert img.shape == (8, 12, 3)
+    assert meta["technique"] == "1,2" and meta["mis"] == "balance" and meta["rr_depth"] == 3
+    assert meta["hide_emitters"] == 1
+
+
+def test_no_emitters_warns_and_renders_black(tmp_path):
+    out = tmp_path / "black.exr"
+    p = ok(run_cli("render", NO_EMITTERS, "-D", "resx=8", "-D", "resy=8", "--spp", 2, "-o", out))
+    assert "no emitters" in p.stderr and "black" in p.stderr
+    img, meta = read_exr(out)
+    assert meta["spp"] == 2 and np.all(img == 0)
+
+
+# -- progressive rendering --------------------------------------------------------------------
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_stops_after_current_pass(tmp_path, sig):
+    out = tmp_path / "int.exr"
+    spp, per_pass = 4096, 2               # ~2000 passes: far longer than the test waits
+    proc = subprocess.Popen([sys.executable, "-m", "bdpt_drjit", "render", CORNELL, *TINY,
+                             "--spp", str(spp), "--samples-per-pass", str(per_pass),
+                             "--max-depth", "3", "-o", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines = []
+    try:
+        for line in proc.stderr:
+            lines.append(line)
+            if line.startswith("bdpt: [") and "passes" in line:
+                break
+        assert proc.poll() is None, "render ended before it could be interrupted:\n" + "".join(lines)
+        assert "samples/s" in lines[-1] and "left" in lines[-1]
+        proc.send_signal(sig)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    stderr = "".join(lines) + stderr
+    assert proc.returncode == 0, stderr
+    assert "Traceback" not in stderr
+    img, meta = read_exr(out)
+    assert np.all(np.isfinite(img)) and img.mean() > 0
+    done = meta["spp"]
+    assert 0 < done < spp and done % per_pass == 0
+    assert meta["passes"] == done // per_pass
+    assert "interrupted" in stderr and "%d of %d spp" % (done, spp) in stderr
+    assert (tmp_path / "int.png").exists()
+    assert not [f for f in written(tmp_path) if f.endswith(".tmp")]
+
+
+def test_time_budget(tmp_path):
+    out = tmp_path / "timed.exr"
+    start = time.perf_counter()
+    p = ok(run_cli("render", CORNELL, *TINY, "--spp", 1000000, "--samples-per-pass", 4,
+                   "--max-depth", 3, "--time", 1, "-o", out))
+    elapsed = time.perf_counter() - start
+    _, meta = read_exr(out)
+    assert 0 < meta["spp"] < 1000000 and meta["spp"] % 4 == 0
+    assert meta["render_time"] >= 0.8
+    assert "time budget" in p.stderr
+    assert elapsed < 60
+
+
+def test_time_and_checkpoint_use_many_passes(tmp_path):
+    out = tmp_path / "ck.exr"
+    # --time / --checkpoint without --samples-per-pass: spp/16 per pass.
+    ok(run_cli("render", CORNELL, *TINY, "--spp", 32, "--max-depth", 3, "--time", 300,
+               "--checkpoint", 0.01, "-o", out))
+    _, meta = read_exr(out)
+    assert meta["spp"] == 32 and meta["passes"] == 16 and meta["samples_per_pass"] == 2
+
+
+# -- merge ----------------------------------------------------------------------------------
+def test_merge_is_spp_weighted_and_matches_single_render(tmp_path):
+    common = ["render", CORNELL, "-D", "resx=32", "-D", "resy=32", "--max-depth", 4, "-q"]
+    a, b, single = tmp_path / "a.exr", tmp_path / "b.exr", tmp_path / "single.exr"
+    ok(run_cli(*common, "--spp", 16, "--seed", 1, "-o", a))
+    ok(run_cli(*common, "--spp", 48, "--seed", 2, "-o", b))
+    ok(run_cli(*common, "--spp", 64, "--seed", 3, "-o", single))
+    merged = tmp_path / "merged.exr"
+    p = ok(run_cli("merge", a, b, "-o", merged))
+    assert "64" in p.stdout
+    ia, _ = read_exr(a)
+    ib, _ = read_exr(b)
+    im, meta = read_exr(merged)
+    assert meta["spp"] == 64
+    assert [int(s) for s in str(meta["seed"]).split(",")] == [1, 2]
+    np.testing.assert_allclose(im, (16 * ia + 48 * ib) / 64, rtol=1e-6, atol=1e-7)
+    assert (tmp_path / "merged.png").exists()
+    # The merge is an unbiased 64 spp estimate: compare it with an independent 64 spp
+    # render.  The difference image has zero mean in every pixel; its pixels are
+    # (nearly) independent, so their spread bounds the error of the whole-image mean.
+    isingle, _ = read_exr(single)
+    d = (im - isingle).mean(axis=2).ravel()
+    z = d.mean() / (d.std(ddof=1) / np.sqrt(d.size))
+    assert abs(z) < 4, "merged mean %.5f vs single %.5f (z = %.2f)" % (im.mean(), isingle.mean(), z)
+    # A merged image merges again, keeping track of every seed; a repeated seed is refused.
+    again = tmp_path / "again.exr"
+    ok(run_cli("merge", merged, single, "-o", again))
+    _, meta2 = read_exr(again)
+    assert meta2["spp"] == 128 and str(meta2["seed"]) == "1,2,3"
+    clean_error(run_cli("merge", merged, a, "-o", tmp_path / "bad.exr"), "seed 1")
+    assert not (tmp_path / "bad.exr").exists()
+
+
+def test_merge_refuses_bad_inputs(tmp_path):
+    img = np.ones((8, 8, 3), np.float32)
+    write_exr(tmp_path / "a.exr", img, {"spp": 4, "seed": 1})
+    write_exr(tmp_path / "same-seed.exr", img, {"spp": 4, "seed": 1})
+    write_exr(tmp_path / "small.exr", np.ones((4, 8, 3), np.float32), {"spp": 4, "seed": 2})
+    write_exr(tmp_path / "nospp.exr", img, {"seed": 3})
+    (tmp_path / "junk.exr").write_text("junk")
+    out = tmp_path / "out.exr"
+    cases = [(["a.exr", "small.exr"], ["size"]),
+             (["a.exr", "same-seed.exr"], ["seed"]),
+             (["a.exr", "nospp.exr"], ["nospp.exr", "spp"]),
+             (["a.exr", "missing.exr"], ["missing.exr", "not found"]),
+             (["a.exr", "junk.exr"], ["junk.exr"]),
+             (["a.exr"], ["two"])]
+    for inputs, words in cases:
+        clean_error(run_cli("merge", *inputs, "-o", out, cwd=tmp_path), *words)
+        assert not out.exists() and not (tmp_path / "out.png").exists()
+
+
+# -- bad input ----------------------------------------------------------------------------
+BAD = [
+    ("missing scene", ["render", "no-such-scene.xml"], ["no-such-scene.xml", "not found"]),
+    ("malformed xml", ["render", "{scenes}/malformed.xml"], ["malformed.xml", "mismatch"]),
+    ("unknown plugin", ["render", "{scenes}/unknown-plugin.xml"], ["spherez"]),
+    ("constant emitter", ["render", "{scenes}/constant.xml"], ["unsupported", "constant"]),
+    ("directional emitter", ["render", "{scenes}/directional.xml"], ["unsupported", "directional"]),
+    ("orthographic sensor", ["render", "{scenes}/ortho.xml"], ["unsupported", "orthographic"]),
+    ("no sensor", ["render", "{scenes}/nosensor.xml"], ["no sensor"]),
+    ("spp 0", ["render", CORNELL, *TINY, "--spp", "0"], ["--spp", "positive"]),
+    ("spp negative", ["render", CORNELL, *TINY, "--spp", "-4"], ["--spp"]),
+    ("spp 0 via -D", ["render", CORNELL, *TINY, "-D", "spp=0"], ["spp", "positive"]),
+    ("max_depth -2", ["render", CORNELL, *TINY, "--max-depth", "-2"], ["--max-depth", "-1"]),
+    ("unknown variant", ["render", CORNELL, *TINY, "--variant", "llvm_foo_rgb"],
+     ["variant", "llvm_foo_rgb"]),
+    ("scalar variant", ["render", CORNELL, *TINY, "--variant", "scalar_rgb"], ["scalar_rgb", "JIT"]),
+    ("unknown parameter", ["render", CORNELL, *TINY, "-D", "nonsense=3"], ["$nonsense"]),
+    ("bad -D", ["render", CORNELL, "-D", "resx"], ["key=value"]),
+    ("bad --res", ["render", CORNELL, "--res", "16"], ["--res"]),
+    ("bad technique", ["render", CORNELL, *TINY, "--technique", "x"], ["--technique"]),
+    ("output not exr", ["render", CORNELL, *TINY, "-o", "{tmp}/out.png"], [".exr"]),
+    ("output dir missing", ["render", CORNELL, *TINY, "-o", "{tmp}/nowhere/out.exr"],
+     ["cannot write", "does not exist"]),
+    ("output parent is a file", ["render", CORNELL, *TINY, "-o", "{tmp}/scenes/ortho.xml/out.exr"],
+     ["cannot write"]),
+    ("info missing scene", ["info", "no-such-scene.xml"], ["not found"]),
+    ("unknown command option", ["render", "--frobnicate"], ["--frobnicate"]),
+]
+
+
+@pytest.mark.parametrize("args, words", [b[1:] for b in BAD], ids=[b[0] for b in BAD])
+def test_bad_input(tmp_path, scenes, args, words):
+    args = [a.format(scenes=scenes, tmp=tmp_path) for a in args]
+    if args[0] == "render" and "-o" not in args:
+        args += ["-o", str(tmp_path / "out.exr")]
+    clean_error(run_cli(*args, cwd=tmp_path), *words)
+    assert written(tmp_path) == [], "files were written: %s" % written(tmp_path)
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="root can write anywhere")
+def test_unwritable_directory(tmp_path):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        clean_error(run_cli("render", CORNELL, *TINY, "-o", locked / "out.exr"), "cannot write")
+    finally:
+        locked.chmod(0o700)
+    assert written(locked) == []
+
+
+def _old_llvm():
+    import glob
+    for pat in ("/usr/lib/x86_64-linux-gnu/libLLVM-1[0-5].so", "/usr/lib/llvm-1[0-5]/lib/libLLVM*.so",
+                "/usr/lib/aarch64-linux-gnu/libLLVM-1[0-5].so"):
+        found = sorted(glob.glob(pat))
+        if found:
+            return found[-1]
+    return None
+
+
+@pytest.mark.skipif(_old_llvm() is None, reason="no LLVM <= 15 on this machine to test with")
+def test_old_llvm_is_refused(tmp_path):
+    p = run_cli("render", CORNELL, *TINY, "-o", tmp_path / "out.exr",
+                env={"DRJIT_LIBLLVM_PATH": _old_llvm()})
+    clean_error(p, "LLVM", ">= 16", "install")
+    assert written(tmp_path) == []
+
+
+def test_missing_llvm_is_refused(tmp_path):
+    p = run_cli("render", CORNELL, *TINY, "-o", tmp_path / "out.exr",
+                env={"DRJIT_LIBLLVM_PATH": str(tmp_path / "libLLVM-missing.so")})
+    clean_error(p, "LLVM", "install")
+    assert written(tmp_path) == []
+
+
+# -- info -------------------------------------------------------------------------------------
+def test_info(scenes):
+    p = ok(run_cli("info", CORNELL, "--res", "16x16"))
+    out = p.stdout
+    assert "perspective" in out and "16x16" in out and "area" in out
+    assert "twosided" in out and "diffuse" in out and "supported" in out
+    assert "REFUSED" not in out
+    p = ok(run_cli("info", scenes / "constant.xml"))
+    assert "constant" in p.stdout and "REFUSED" in p.stdout
+    p = ok(run_cli("info", NO_EMITTERS))
+    assert "black" in p.stdout
+
+
+def test_console_script_and_help():
+    exe = shutil.which("bdpt")
+    if exe is None:
+        pytest.skip("the bdpt console script is not installed (pip install -e .)")
+    p = subprocess.run([exe, "render", "--help"], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0 and "--spp" in p.stdout and "--strategies" in p.stdout
+    p = subprocess.run([exe], capture_output=True, text=True, timeout=60)
+    assert p.returncode != 0 and "Traceback" not in p.stderr
+
+
+# -- EXR module -------------------------------------------------------------------------------
+def test_exr_round_trip(tmp_path):
+    rng = np.random.default_rng(1)
+    meta = {"spp": 64, "seed": 7, "scene": "x.xml", "render_time": 1.5, "flag": True,
+            "huge": 2 ** 40, "npint": np.int64(3), "obj": (1, 2)}
+    for c in (1, 3, 4, 5):
+        img = rng.random((5, 7, c), dtype=np.float32) * 100
+        path = tmp_path / ("c%d.exr" % c)
+        write_exr(path, img, meta)
+        back, m = read_exr(path)
+        assert back.dtype == np.float32 and back.shape == img.shape
+        np.testing.assert_array_equal(back, img)
+        assert m["spp"] == 64 and isinstance(m["spp"], int) and m["seed"] == 7
+        assert m["scene"] == "x.xml" and m["render_time"] == 1.5 and m["flag"] == 1
+        assert m["huge"] == str(2 ** 40) and m["npint"] == 3 and m["obj"] == "(1, 2)"
+        assert "channels" not in m
+    # 2-D input is one channel; existing files are replaced.
+    write_exr(tmp_path / "c1.exr", np.zeros((2, 3)))
+    back, m = read_exr(tmp_path / "c1.exr")
+    assert back.shape == (2, 3, 1) and m == {}
+    # Layers.
+    layers = {"s1t2": rng.random((4, 4, 3), dtype=np.float32),
+              "s0t3": rng.random((4, 4, 3), dtype=np.float32)}
+    write_layers(tmp_path / "l.exr", layers, {"spp": 2}, image=layers["s1t2"] + layers["s0t3"])
+    back, m = read_layers(tmp_path / "l.exr")
+    assert set(back) == {"", "s1t2", "s0t3"} and m["spp"] == 2
+    for k, v in layers.items():
+        np.testing.assert_array_equal(back[k], v)
+    import OpenEXR
+    names = set(OpenEXR.File(str(tmp_path / "l.exr"), separate_channels=True).channels())
+    assert {"s1t2.R", "s1t2.G", "s1t2.B", "R", "G", "B"} <= names
+    assert not [f for f in written(tmp_path) if f.endswith(".tmp")]
+
+
+def test_exr_failed_write_keeps_old_file(tmp_path):
+    path = tmp_path / "keep.exr"
+    write_exr(path, np.ones((2, 2, 3)), {"spp": 1})
+    with pytest.raises(ValueError):
+        write_exr(path, np.zeros((2, 2, 3)), {"channels": "reserved"})
+    with pytest.raises(ValueError):
+        write_exr(path, np.zeros((0, 2, 3)))
+    img, meta = read_exr(path)
+    assert np.all(img == 1) and meta["spp"] == 1
+    assert written(tmp_path) == ["keep.exr"]
