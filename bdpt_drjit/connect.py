@@ -67,9 +67,9 @@ def next_event(ctx, si, bsdf, vertex: Vertex, sample, active):
     active = active & ok
     wo = si.to_local(ds.d)
     contrib = vertex.beta * bsdf.eval(RADIANCE, si, wo, active) * spec
-    active = active & (spectrum_nonzero(contrib))
+    active = active & spectrum_nonzero(contrib)
     _count(ctx, active)
-    active = active & (~scene.ray_test(si.spawn_ray_to(ds.p), active))
+    active = active & ~scene.ray_test(si.spawn_ray_to(ds.p), active)
     if ctx.use_mis and ctx.h.is_lafortune:
         contrib *= mis.weight_lafortune(vertex.lw, mis.lafortune_specularity(bsdf.flags()),
                                         "nee", ds.delta)
@@ -100,9 +100,9 @@ def light_vertex_to_camera(ctx, si, bsdf, vertex: Vertex, s: int, sample, active
     wo = si.to_local(ds.d)
     f = bsdf.eval(IMPORTANCE, si, wo, active) * adjoint_correction(si, ds.d)
     contrib = vertex.beta * f * importance * ctx.camera_weight
-    active = active & (spectrum_nonzero(contrib))
+    active = active & spectrum_nonzero(contrib)
     _count(ctx, active)
-    active = active & (~scene.ray_test(si.spawn_ray_to(ds.p), active))
+    active = active & ~scene.ray_test(si.spawn_ray_to(ds.p), active)
     if ctx.use_mis:
         rev = reverse_pdf(bsdf, RADIANCE, si, wo, active)
         # imp = pdf_w(camera) / d^2, so the camera's area density at y_i is imp * cos.
@@ -126,9 +126,9 @@ def emitter_to_camera(ctx, es, sample):
                               ctx.wavelengths, ctx.time, active)
     cos_e = dr.abs(dr.dot(es.n, ds.d))
     contrib = le * cos_e / es.pos_pdf_a * importance * ctx.camera_weight
-    active = active & (spectrum_nonzero(contrib))
+    active = active & spectrum_nonzero(contrib)
     _count(ctx, active)
-    active = active & (~ctx.scene.ray_test(it.spawn_ray_to(ds.p), active))
+    active = active & ~ctx.scene.ray_test(it.spawn_ray_to(ds.p), active)
     if ctx.use_mis:
         cam_pdf_a = mi.unpolarized_spectrum(importance)[0] * cos_e / ctx.light_ratio
         contrib *= mis.weight_emitter_to_camera(ctx.h, cam_pdf_a, es.pos_pdf_a)
@@ -152,9 +152,9 @@ def connect_vertices(ctx, light: Vertex, cam: Vertex, si_c, bsdf_c):
     f_c = bsdf_c.eval(RADIANCE, si_c, wc, active)
     f_l = bsdf_l.eval(IMPORTANCE, si_l, wl, active) * adjoint_correction(si_l, -w)
     contrib = cam.beta * f_c * f_l * light.beta / dist2
-    active = active & (spectrum_nonzero(contrib))
+    active = active & spectrum_nonzero(contrib)
     _count(ctx, active)
-    active = active & (~ctx.scene.ray_test(si_c.spawn_ray_to(si_l.p), active))
+    active = active & ~ctx.scene.ray_test(si_c.spawn_ray_to(si_l.p), active)
     if ctx.use_mis and ctx.h.is_lafortune:
         contrib *= mis.weight_lafortune(cam.lw, mis.lafortune_specularity(bsdf_c.flags()), "connect")
     elif ctx.use_mis:
