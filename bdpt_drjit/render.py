@@ -33,10 +33,10 @@ from .walk import trace_camera_subpaths, trace_light_subpaths
 
 DEFAULT_MEMORY_BUDGET = 2 * 1024 ** 3
 # Bytes per lane: one stored vertex (intersection, ray, throughput, MIS state) and
-# the transient state of one depth step.  Calibrated on peak RSS: 1.15 kB per lane
-# at max_depth 8 (Cornell box, 0.6 and 1.2 M lanes), plus 20% margin.
-_VERTEX_BYTES = 56
-_LANE_BYTES = 500
+# the transient state of one depth step.  Calibrated on peak RSS: 2.1 kB per lane
+# at max_depth 8 and 3.0 kB at max_depth 10 (Cornell box, 1920x1080).
+_VERTEX_BYTES = 110
+_LANE_BYTES = 700
 
 
 @dataclass

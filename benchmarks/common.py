@@ -198,7 +198,15 @@ def median(values):
 
 
 def peak_rss_mib() -> float:
-    """Peak resident set size of this process (Linux reports KiB, macOS bytes)."""
+    """Peak resident set size of this process.  On Linux VmHWM from /proc/self/status:
+    getrusage's ru_maxrss survives fork + exec, so a subprocess would report its
+    parent's peak if that was larger.  Elsewhere ru_maxrss (KiB on Linux, bytes on macOS)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    except (OSError, ValueError, IndexError):
+        pass
     r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return r / (1024 * 1024) if sys.platform == "darwin" else r / 1024
 
@@ -479,7 +487,7 @@ def parse_res(text) -> tuple[int, int]:
 
 class JSONEncoder(json.JSONEncoder):
     def default(self, o):
-        if isinstance(o, (np.floating, np.integer)):
+        if isinstance(o, (np.floating, np.integer, np.bool_)):
             return o.item()
         if isinstance(o, np.ndarray):
             return o.tolist()

@@ -66,7 +66,9 @@ class Config:
     rss_sizes: list
     cold: bool
     cold_res: int = 64
-    seeds: int = 1
+    seeds: int = 1                  # renders per level (errors averaged, median time) ...
+    short_repeats: int = 3          # ... but at least this many for renders shorter than
+    short_time: float = 0.1         # this (seconds)
     methods: list = field(default_factory=lambda: list(ALL_METHODS))
     ref_mitsuba_factor: int = 4
 
@@ -76,7 +78,7 @@ MODES = {
                     scenes=["cornell-diffuse", "point-caustic"], pyramid_scenes=["point-caustic"],
                     pyramid_res=16, pyramid_spp=4, pyramid_rows=3, tp_res=16, tp_spp=2, tp_repeats=1,
                     grid_res=[8, 16], grid_spp=[1, 2], depths=[2, 3], depth_res=16, depth_spp=1,
-                    rss_sizes=[], cold=False,
+                    rss_sizes=[], cold=False, short_repeats=1,
                     methods=["bdpt-power", "bdpt-balance", "bdpt-no-lt", "path", "ptracer"]),
     "quick": Config(mode="quick", res=32, levels=[1, 4, 16], ref_spp=1024, match_cap=16384,
                     scenes=[s.name for s in SCENE_LIST], pyramid_scenes=list(PYRAMID_SCENES),
@@ -105,6 +107,12 @@ class Progress:
 def fig(plt, w=6, h=4):
     f, ax = plt.subplots(figsize=(w, h), dpi=100)
     return f, ax
+
+
+def no_minor_labels(ax):
+    from matplotlib.ticker import NullFormatter
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.yaxis.set_minor_formatter(NullFormatter())
 
 
 def save(f, path: Path):
@@ -181,11 +189,15 @@ def error_for_scene(spec, cfg: Config, methods, refs_dir: Path, progress) -> dic
                 if i >= len(spp_list):
                     break
                 spp = spp_list[i]
-            outs = [C.render(m, scene, spp, 1 + 7919 * s + 31 * i, spec.max_depth) for s in range(cfg.seeds)]
+            outs = [C.render(m, scene, spp, 1 + 31 * i, spec.max_depth)]
+            # Short renders are timed noisily on a busy machine and their errors vary a lot
+            # between seeds (fireflies): repeat them (median time, mean error).
+            n_runs = max(cfg.seeds, cfg.short_repeats if outs[0].timing.run < cfg.short_time else 1)
+            outs += [C.render(m, scene, spp, 1 + 7919 * k + 31 * i, spec.max_depth) for k in range(1, n_runs)]
             rel = float(np.mean([C.rel_mse(o.image, ref) for o in outs]))
             ma = float(np.mean([C.mare(o.image, ref) for o in outs]))
             t = C.median([o.timing.run for o in outs])
-            rec = {"scene": spec.name, "method": m.name, "spp": spp, "time": t,
+            rec = {"scene": spec.name, "method": m.name, "spp": spp, "time": t, "renders": len(outs),
                    "wall": C.median([o.timing.wall for o in outs]),
                    "compile": C.median([o.timing.compile for o in outs]),
                    "relmse": rel, "mare": ma, "mean": float(np.mean(outs[0].image)),
@@ -233,11 +245,12 @@ def cost(r, key):
     return r[key]
 
 
-def equal_comparison(result, key="time", baseline="path"):
+def equal_comparison(result, key="time", baseline="path", budget_method="bdpt-power"):
     """Error each method reaches at a common cost x (time or rays), and the cost it
     needs to reach a target error (``baseline``'s error at its last level), both also
-    as ratios to ``baseline``.  x = the geometric middle of the cost range that every
-    method covers (or the nearest edge when the ranges do not overlap)."""
+    as ratios to ``baseline``.  x = what ``budget_method`` used at its last level (the
+    Mitsuba methods are run until they have used as much time), else the geometric
+    middle of the cost range that every method covers."""
     pts = {}
     for r in result["records"]:
         x = cost(r, key)
@@ -247,10 +260,18 @@ def equal_comparison(result, key="time", baseline="path"):
         return None
     lo = max(min(p[1] for p in v) for v in pts.values())
     hi = min(max(p[1] for p in v) for v in pts.values())
-    x0 = math.sqrt(lo * hi) if lo <= hi else math.sqrt(lo * hi)
+    x0 = math.sqrt(lo * hi)
+    if budget_method in pts:
+        x0 = max(p[1] for p in pts[budget_method])
     base = pts.get(baseline)
-    e_target = sorted(base)[-1][2] if base else None
     rows = {}
+    # Target error: the larger of what the baseline and the budget method reach at x0,
+    # so that both reach it inside their measured ranges.
+    e_target = None
+    if base:
+        e_target = C.error_at_cost(base, x0)[0]
+        if budget_method in pts:
+            e_target = max(e_target, C.error_at_cost(pts[budget_method], x0)[0])
     for m, p in pts.items():
         e, ex = C.error_at_cost(p, x0)
         tt, ext = C.cost_to_error(p, e_target) if e_target else (float("nan"), True)
@@ -267,13 +288,14 @@ def chart_error(result, plt, path: Path, methods):
     f, ax = fig(plt)
     cv = curves(result, "time")
     for m in methods:
-        if m.name not in cv:
+        if m.name not in cv or m.name == "bdpt-lafortune":     # in the weighting chart only
             continue
         xs, es = cv[m.name]
         ax.loglog(xs, es, m.style, color=m.color, marker="o", ms=3, label=m.label)
     eq = result.get("equal_time")
     if eq:
         ax.axvline(eq["x"], color="0.7", lw=0.8, ls=":")
+    no_minor_labels(ax)
     ax.set_xlabel("render time / s (compile excluded)")
     ax.set_ylabel("relative MSE")
     ax.set_title("%s (%dx%d, max_depth %d)" % (result["scene"], result["width"], result["height"],
@@ -294,6 +316,7 @@ def chart_weighting(result, plt, path: Path, methods):
     if cv.get("bdpt-power"):
         xs, es = cv["bdpt-power"]
         ax.loglog(xs, [es[0] * xs[0] / x for x in xs], color="0.6", lw=0.8, ls=":", label="1/spp")
+    no_minor_labels(ax)
     ax.set_xlabel("samples per pixel")
     ax.set_ylabel("relative MSE")
     ax.set_title("MIS weighting: %s" % result["scene"], fontsize=10)
@@ -347,6 +370,7 @@ def scaling(cfg: Config, plt, charts: Path, progress) -> dict:
         ax.loglog(xs, ft["overhead_s"] + ft["per_sample_s"] * xs, "-", color=m.color, lw=0.8,
                   label="fit %.3g s + N/%.3g/s" % (ft["overhead_s"], 1 / ft["per_sample_s"])
                   if ft["per_sample_s"] > 0 else "fit")
+    no_minor_labels(ax)
     ax.set_xlabel("samples (pixels x spp)")
     ax.set_ylabel("render time / s")
     ax.set_title("Time vs pixels x spp (Cornell box, max_depth 8)", fontsize=10)
@@ -360,7 +384,7 @@ def scaling(cfg: Config, plt, charts: Path, progress) -> dict:
         sc = TP.load_scene(CORNELL, res, res, d)
         for m in (C.BDPT_POWER, C.PATH):
             C.render(m, sc, spp, 99, d)
-            o = [C.render(m, sc, spp, 5 + k, d) for k in range(2)]
+            o = [C.render(m, sc, spp, 5 + k, d) for k in range(3)]
             t = C.median([x.timing.run for x in o])
             out["depth"].append({"method": m.name, "max_depth": d, "time": t,
                                  "kernels_per_pass": o[0].timing.kernels / o[0].passes,
@@ -427,7 +451,9 @@ def pyramid(spec, cfg: Config, plt, path: Path, progress) -> dict | None:
     total = sum(strat.values()) if strat else np.zeros_like(img)
     sum_err = float(np.max(np.abs(total - img))) if strat else float("nan")
     K = min(cfg.pyramid_rows, spec.max_depth)
-    exposure = C.auto_exposure(img)
+    # Each cell has its own exposure (printed in its title): at one common exposure most
+    # strategies are nearly black.  The cell's mean tells its share of the image.
+    base_exposure = C.auto_exposure(img)
     fw, fh = 1.25 * (K + 1), 1.25 * h / w * K + 0.6
     f, axes = plt.subplots(K, K + 1, figsize=(fw, fh), dpi=100, squeeze=False)
     energy = {}
@@ -445,20 +471,24 @@ def pyramid(spec, cfg: Config, plt, path: Path, progress) -> dict | None:
                 im = np.zeros_like(img)
                 ax.set_facecolor("0.85")
             energy["%d,%d" % (s, t)] = float(np.mean(im))
+            exposure = C.auto_exposure(im) if np.any(im > 0) else base_exposure
             ax.imshow(C.to_srgb8(im, exposure), interpolation="nearest")
-            ax.set_title("s=%d t=%d" % (s, t), fontsize=6, pad=1)
+            share = float(np.mean(im)) / max(float(np.mean(img)), 1e-12)
+            ax.set_title("s=%d t=%d  %.0f%%  x%.2g" % (s, t, 100 * share, exposure / base_exposure),
+                         fontsize=5.5, pad=1)
             if s == 0:
                 ax.set_ylabel("k=%d" % k, fontsize=7)
-    f.suptitle("%s: MIS-weighted strategies (power), row k = s+t-1 edges, column s"
-               % spec.name, fontsize=8)
-    f.subplots_adjust(wspace=0.05, hspace=0.25, left=0.04, right=0.99, bottom=0.01, top=0.9)
+    f.suptitle("%s: MIS-weighted strategies (power); row k = s+t-1 edges, column s;\n"
+               "title: share of the image's mean, exposure relative to the full image"
+               % spec.name, fontsize=7)
+    f.subplots_adjust(wspace=0.05, hspace=0.25, left=0.04, right=0.99, bottom=0.01, top=0.88)
     path.parent.mkdir(parents=True, exist_ok=True)
     f.savefig(path, dpi=100)
     plt.close(f)
     # the full image next to it
     full = path.with_name(path.stem + "_image.png")
     from PIL import Image  # matplotlib depends on pillow
-    Image.fromarray(C.to_srgb8(img, exposure)).resize((w * max(1, 192 // w), h * max(1, 192 // w)),
+    Image.fromarray(C.to_srgb8(img, base_exposure)).resize((w * max(1, 192 // w), h * max(1, 192 // w)),
                                                       Image.NEAREST).save(full)
     return {"scene": spec.name, "width": w, "height": h, "spp": cfg.pyramid_spp, "rows": K,
             "strategies": len(strat), "max_abs_sum_error": sum_err, "mean_per_strategy": energy,
@@ -480,6 +510,19 @@ def results_md(res: dict, cfg: Config, chart_rel: str) -> str:
         w("")
     w("Reproduce: `%s` (from the repository root; took %.0f s)." % (res["command"], res["elapsed"]))
     w("")
+    if cfg.mode != "full":
+        w("Caveats of these small runs:")
+        w("")
+        w("- At %dx%d a BDPT render costs a fixed ~0.03-0.15 s whatever its spp (Python tracing "
+          "and launching ~%s kernels plus ~%s smaller launches per pass), so the equal-time "
+          "comparisons are biased against BDPT here; the equal-ray table is the comparison that "
+          "does not depend on the image size." % (cfg.res, cfg.res, _tp(res, "kernels_per_pass"),
+                                                 _tp(res, "other_launches_per_pass")))
+        w("- The machine was shared (load average at start %.2f on %d cores): times vary by up "
+          "to 2-3x between runs." % (res["machine"]["load_avg_1min"], res["machine"]["cpu_count"]))
+        w("- Few renders per level: in scenes with fireflies (caustics, SDS, veach-bidir) the "
+          "relative MSE of one render is dominated by rare outliers and jumps between levels.")
+        w("")
     w("Machine: %s, %d cores (os.cpu_count), load average %.2f at start; %s; Python %s; "
       "variant `%s`; Mitsuba %s; Dr.Jit %s; LLVM %s; bdpt-drjit %s. Date: %s."
       % (m["cpu"], m["cpu_count"], m["load_avg_1min"], m["platform"], m["python"], m["variant"],
@@ -514,8 +557,8 @@ def results_md(res: dict, cfg: Config, chart_rel: str) -> str:
                                   ("equal_rays", "Error at equal ray count", "rays")):
             w("## %s (ratio to Mitsuba `path`; < 1: better than path)" % title)
             w("")
-            w("Relative MSE each method reaches at the same %s x (the geometric middle of the "
-              "range all methods cover), interpolated in log-log through spp; `~` = "
+            w("Relative MSE each method reaches with the same %s x = what BDPT (power) used "
+              "at its last spp level, interpolated in log-log through spp; `~` = "
               "extrapolated (at most %gx beyond the measured range, else n/a)."
               % (xname, C.MAX_EXTRAPOLATION))
             w("")
@@ -531,10 +574,12 @@ def results_md(res: dict, cfg: Config, chart_rel: str) -> str:
                     cells.append("n/a" if r is None else ratio_str(r.get("err_ratio"), r["err_extrapolated"]))
                 w("| %s | %.3g | %s |" % (s["scene"], eq["x"], " | ".join(cells)))
             w("")
-        w("## Time to reach path's final error (ratio to Mitsuba `path`; < 1: faster)")
+        w("## Time to reach a target error (ratio to Mitsuba `path`; < 1: faster)")
         w("")
-        w("Target = the relative MSE Mitsuba `path` reaches at its last level; `never` = the "
-          "curve stops improving before it (e.g. a missing effect); `~` = extrapolated.")
+        w("Target = the larger of the relative MSEs that Mitsuba `path` and BDPT (power) reach "
+          "at the equal-time budget above; `never` = the curve stops improving before it "
+          "(e.g. a missing effect); `~` = extrapolated; n/a = more than %gx beyond the "
+          "measured range." % C.MAX_EXTRAPOLATION)
         w("")
         w("| scene | target relMSE | " + " | ".join(methods) + " |")
         w("|---|---|" + "---|" * len(methods))
@@ -648,7 +693,8 @@ def results_md(res: dict, cfg: Config, chart_rel: str) -> str:
         w("## Strategy pyramids")
         w("")
         w("Per-(s,t) MIS-weighted images of BDPT (power heuristic), row k = s+t-1 (path edges), "
-          "column s (light vertices); same exposure as the full image. Cf. Veach's thesis "
+          "column s (light vertices); each cell has its own exposure (relative to the full image, "
+          "in its title, with its share of the image's mean). Cf. Veach's thesis "
           "fig. 10.3 / Adamsen's fig. 16.")
         w("")
         for p in res["pyramids"]:
@@ -669,6 +715,16 @@ def results_md(res: dict, cfg: Config, chart_rel: str) -> str:
     return "\n".join(L)
 
 
+def recs_of(scene_result, method):
+    return sorted((r for r in scene_result["records"] if r["method"] == method), key=lambda r: r["spp"])
+
+
+def _tp(res, key):
+    tp = res.get("throughput") or {}
+    v = (tp.get("bdpt-power") or {}).get(key)
+    return "%.0f" % v if v is not None else "?"
+
+
 def observations(res: dict) -> list:
     """Automatic flags: BDPT losing where it should win, non-finite pixels, ..."""
     obs = []
@@ -680,8 +736,15 @@ def observations(res: dict) -> list:
         if eq and "bdpt-power" in eq["methods"] and "path" in eq["methods"]:
             r = eq["methods"]["bdpt-power"]["err_ratio"]
             if s["scene"] in should_win and r > 1:
+                why = ""
+                pe = [q["relmse"] for q in recs_of(s, "path")][-3:]
+                if len(pe) == 3 and pe[-1] > 0.8 * pe[0]:
+                    why = (" Path's error has stopped falling (%.3g -> %.3g over its last 3 levels): "
+                           "its image misses an effect (bias), which relMSE charges less than "
+                           "BDPT's noise at this small budget; BDPT should cross below it with "
+                           "more time." % (pe[0], pe[-1]))
                 obs.append("%s: BDPT (power) has %.2fx path's error at equal time, although it should "
-                           "win here." % (s["scene"], r))
+                           "win here.%s" % (s["scene"], r, why))
             elif s["scene"] in should_win:
                 obs.append("%s: BDPT (power) reaches %.2fx path's error at equal time (expected < 1)."
                            % (s["scene"], r))
@@ -713,6 +776,8 @@ def main(argv=None) -> int:
     ap.add_argument("--skip", default="", help="comma-separated sections to skip: " + ",".join(SECTIONS))
     ap.add_argument("--no-publish", action="store_true",
                     help="do not copy charts to benchmarks/charts and RESULTS.md to benchmarks/")
+    ap.add_argument("--report-only", action="store_true",
+                    help="redo the tables, charts and RESULTS.md from OUT/results.json without rendering")
     args = ap.parse_args(argv)
     mode = "smoke" if args.smoke else "quick" if args.quick else "full"
     cfg = replace(MODES[mode])
@@ -747,6 +812,8 @@ def main(argv=None) -> int:
     plt = C.matplotlib()
     cmd = "python -m benchmarks.run" + ("" if argv is None and len(sys.argv) <= 1 else " " + " ".join(
         sys.argv[1:] if argv is None else argv))
+    if args.report_only:
+        return report_only(out, publish, plt, progress)
     progress("benchmarks.run, %s mode -> %s" % (mode, out))
     methods = C.available_methods(cfg.methods)
     res = {"mode": mode, "command": cmd, "machine": C.machine_info(), "config": cfg.__dict__,
@@ -796,18 +863,52 @@ def main(argv=None) -> int:
     res["observations"] = observations(res)
     res["elapsed"] = time.perf_counter() - t_start
     C.write_json(out / "results.json", res)
+    finish(res, cfg, out, publish, progress)
+    return 0
+
+
+def report_only(out: Path, publish: bool, plt, progress) -> int:
+    import json
+    res = json.loads((out / "results.json").read_text())
+    cfg = Config(**res["config"])
+    methods = [C.METHODS[m] for m in res["methods"]]
+    charts = out / "charts"
+    for r in res["scenes"]:
+        if not r:
+            continue
+        r["equal_time"] = equal_comparison(r, "time")
+        r["equal_rays"] = equal_comparison(r, "rays")
+        chart_error(r, plt, charts / r["chart"], methods)
+        chart_weighting(r, plt, charts / r["weighting_chart"], methods)
+    res["observations"] = observations(res)
+    C.write_json(out / "results.json", res)
+    finish(res, cfg, out, publish, progress)
+    return 0
+
+
+def small_png(src: Path, dst: Path) -> None:
+    """Copy a chart as a palette PNG (a third of the size, to be committed)."""
+    try:
+        from PIL import Image
+        with Image.open(src) as im:
+            im.convert("RGB").quantize(colors=128).save(dst, optimize=True)
+    except Exception:  # noqa: BLE001  (no pillow, odd image: plain copy)
+        shutil.copy2(src, dst)
+
+
+def finish(res, cfg, out: Path, publish: bool, progress) -> None:
+    charts = out / "charts"
     md = results_md(res, cfg, "charts")
     (out / "RESULTS.md").write_text(md)
     if publish:
         C.CHARTS.mkdir(parents=True, exist_ok=True)
         for png in charts.glob("*.png"):
-            shutil.copy2(png, C.CHARTS / png.name)
+            small_png(png, C.CHARTS / png.name)
         (C.BENCH / "RESULTS.md").write_text(md)
         progress("published charts to %s and %s" % (C.CHARTS, C.BENCH / "RESULTS.md"))
     for o in res["observations"]:
         progress("observation: " + o)
     progress("done in %.0f s; results in %s" % (res["elapsed"], out))
-    return 0
 
 
 if __name__ == "__main__":

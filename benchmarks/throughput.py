@@ -2,7 +2,7 @@
 
     python -m benchmarks.throughput                    # 256x256, max_depth 8, 64 spp, 3 repeats
     python -m benchmarks.throughput --spp 4 --res 64   # a quick check
-    python -m benchmarks.throughput --cold             # also a cold compile (empty kernel cache)
+    python -m benchmarks.throughput --no-cold          # skip the cold-compile subprocess
     python -m benchmarks.throughput --json out.json
 
 For each method: a first render (compiles the kernels, or loads them from Dr.Jit's
@@ -12,6 +12,10 @@ the timed region), their ratio, rays per sample (BDPT counts its rays; for ``pat
 they are estimated by a probe, see common.estimate_mitsuba_rays), kernel launches per
 pass (Dr.Jit kernel history), peak memory (process RSS via getrusage, and Dr.Jit's
 allocator watermark), and compile vs run time.
+
+Compile time: the first render in this process may load kernels from Dr.Jit's disk
+cache; the cold compile is measured in a subprocess whose HOME (and so kernel cache)
+is an empty temporary folder.
 
 ``--probe METHOD`` renders once with one method and prints one JSON line; run.py uses
 it in subprocesses to get each resolution's own peak RSS, and with an empty kernel
@@ -109,7 +113,6 @@ def probe_subprocess(method: str, scene: Path, width: int, height: int, spp: int
 
 def probe_main(args) -> None:
     """One render in this (fresh) process; prints a JSON line."""
-    t_import = time.perf_counter()
     method = C.METHODS[args.probe]
     w, h = C.parse_res(args.res)
     scene = load_scene(args.scene, w, h, args.max_depth)
@@ -121,8 +124,7 @@ def probe_main(args) -> None:
            "first_wall": first.timing.wall, "first_compile": first.timing.compile,
            "first_kernels_compiled": first.timing.misses,
            "first_kernels_from_disk": first.timing.disk_loads,
-           "kernels": first.timing.kernels, "passes": first.passes,
-           "startup": t_import}
+           "kernels": first.timing.kernels, "passes": first.passes}
     if args.twice:
         second = C.render(method, scene, args.spp, 2, args.max_depth)
         out.update(second_wall=second.timing.wall, second_compile=second.timing.compile)
@@ -204,8 +206,8 @@ def main(argv=None):
     ap.add_argument("--max-depth", type=int, default=8)
     ap.add_argument("--scene", default=str(DEFAULT_SCENE))
     ap.add_argument("--json", type=Path, help="write the results as JSON")
-    ap.add_argument("--cold", action="store_true",
-                    help="also time a cold compile in a subprocess with an empty kernel cache")
+    ap.add_argument("--no-cold", dest="cold", action="store_false",
+                    help="skip the cold-compile measurement (a subprocess with an empty kernel cache)")
     ap.add_argument("--probe", choices=sorted(C.METHODS), help=argparse.SUPPRESS)
     ap.add_argument("--twice", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
