@@ -3,7 +3,7 @@
     bdpt render [SCENE.xml] [-o out.exr] [--spp N] [--max-depth N] [--seed N]
                 [--time SECONDS] [--checkpoint SECONDS] [--res WxH] [-D key=value ...]
                 [--variant llvm_ad_rgb] [--mis power|balance|uniform] [--rr-depth N]
-                [--technique s,t] [--no-light-image] [--hide-emitters]
+                [--technique s,t] [--strategy-set all|pt|lt] [--no-light-image] [--hide-emitters]
                 [--samples-per-pass N] [--strategies] [--quiet]
     bdpt merge a.exr b.exr ... -o out.exr
     bdpt info [SCENE.xml] [-D key=value ...]
@@ -206,8 +206,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--rr-depth", type=_positive_int, metavar="N",
                    help="subpath vertex where Russian roulette starts (default 5)")
     r.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (default 0)")
-    r.add_argument("--mis", choices=("power", "balance", "uniform"),
+    r.add_argument("--mis", choices=("power", "balance", "uniform", "lafortune"),
                    help="MIS heuristic (default power)")
+    r.add_argument("--strategy-set", dest="strategy_set", choices=("all", "pt", "lt"),
+                   help="strategy subset: all (default), pt (path tracing + NEE), lt (light tracing)")
     r.add_argument("--technique", type=_technique, metavar="s,t",
                    help="render only strategy (s,t), unweighted")
     r.add_argument("--no-light-image", dest="light_image", action="store_false", default=None,
@@ -548,7 +550,7 @@ def cmd_render(args) -> int:
     chose_pass_size = args.samples_per_pass is not None or "samples_per_pass" in settings
     cli_settings = {"max_depth": args.max_depth, "rr_depth": args.rr_depth, "mis": args.mis,
                     "technique": args.technique, "light_image": args.light_image,
-                    "hide_emitters": args.hide_emitters,
+                    "hide_emitters": args.hide_emitters, "strategies": args.strategy_set,
                     "samples_per_pass": args.samples_per_pass}
     settings.update({k: v for k, v in cli_settings.items() if v is not None})
     settings.setdefault("samples_per_pass", 0)

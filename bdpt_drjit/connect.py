@@ -53,6 +53,8 @@ def emission_hit(ctx, si, beta, d_vcm, d_vc, prev: mi.Interaction3f | None, acti
         else:
             direct_pdf = ctx.emitters.nee_pdf_a(prev, si.p, n, si.uv, emitter,
                                                 mi.Bool(False), si.time, hit)
+        if ctx.pt_only:             # rivals: NEE only (no light vertices beyond y_0)
+            d_vc = mi.Float(0.0)
         contrib *= mis.weight_emission_hit(ctx.h, d_vcm, d_vc, direct_pdf, emission_pdf)
     return dr.select(hit, finite(contrib), 0.0)
 
@@ -85,7 +87,10 @@ def next_event(ctx, si, bsdf, vertex: Vertex, sample, active):
         # angle at z_{t-1} it becomes pmf * d^2 (cos_light = 1), as in SmallVCM.
         nee_pdf = dr.select(ds.delta, ds.pdf * dr.square(ds.dist),
                             scene.pdf_emitter_direction(si, ds, active & ~ds.delta))
-        contrib *= mis.weight_nee(ctx.h, vertex.d_vcm, vertex.d_vc, bsdf_pdf, nee_pdf,
+        d_vcm, d_vc = vertex.d_vcm, vertex.d_vc
+        if ctx.pt_only:             # rivals: the emitter hit only
+            d_vcm, d_vc = mi.Float(0.0), mi.Float(0.0)
+        contrib *= mis.weight_nee(ctx.h, d_vcm, d_vc, bsdf_pdf, nee_pdf,
                                   emission_pdf, cos_cam, cos_light, bsdf_rev)
     return dr.select(active, finite(contrib), 0.0)
 

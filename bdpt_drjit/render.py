@@ -48,6 +48,7 @@ class Settings:
     light_image: bool = True
     hide_emitters: bool = False
     technique: tuple[int, int] | None = None
+    strategies: str = "all"
     samples_per_pass: int = 0
     memory_budget: int = DEFAULT_MEMORY_BUDGET
 
@@ -63,12 +64,25 @@ class Settings:
         Heuristic(self.mis)          # validates the name
         if self.mis == "lafortune":  # L&W's scheme has no light image (t = 1)
             self.light_image = False
+        if self.strategies not in STRATEGY_SETS:
+            raise ValueError("bdpt: strategies must be one of %s, got %r"
+                             % (", ".join(STRATEGY_SETS), self.strategies))
+        if self.strategies == "pt":
+            self.light_image = False
+        if self.strategies == "lt" and not self.light_image:
+            raise ValueError("bdpt: strategies='lt' (light tracing) needs light_image")
         if self.technique is not None:
             s, t = self.technique
             if s < 0 or t < 1:
                 raise ValueError("bdpt: technique (s,t) needs s >= 0 and t >= 1, got %s" % (self.technique,))
             if t == 1 and not self.light_image:
                 raise ValueError("bdpt: technique %d,1 is a light-tracing strategy, but light_image is false" % s)
+
+
+# Strategy subsets of the same engine, to show what MIS buys: "pt" = path tracing
+# with next-event estimation (s <= 1, MIS between the two), "lt" = light tracing
+# (t = 1: one strategy per path length, weight 1).
+STRATEGY_SETS = ("all", "pt", "lt")
 
 
 def parse_technique(text: str | None):
@@ -101,7 +115,11 @@ class PassContext:
 
     @property
     def use_mis(self) -> bool:
-        return self.settings.technique is None
+        return self.settings.technique is None and self.settings.strategies != "lt"
+
+    @property
+    def pt_only(self) -> bool:
+        return self.settings.strategies == "pt"
 
     def enabled(self, s: int, t: int) -> bool:
         st = self.settings
@@ -109,6 +127,10 @@ class PassContext:
         if k < 1 or (st.max_depth >= 0 and k > st.max_depth):
             return False
         if st.technique is not None and st.technique != (s, t):
+            return False
+        if st.strategies == "pt" and not (s <= 1 and t >= 2):
+            return False
+        if st.strategies == "lt" and t != 1:
             return False
         if t == 1 and not st.light_image:
             return False
@@ -252,6 +274,10 @@ class Renderer:
             return t - 1, (s - 1 if s >= 2 else 0)
         if st.max_depth < 0:
             return None, None
+        if st.strategies == "pt":
+            return st.max_depth, -1
+        if st.strategies == "lt":
+            return 0, st.max_depth - 1
         return st.max_depth, st.max_depth - (1 if st.light_image else 2)
 
     def run_pass(self) -> None:
@@ -284,7 +310,8 @@ class Renderer:
 
         # Stage 2: light subpaths (+ t = 1 splats).
         light_vertices = []
-        if self.emitters.count and (max_light is None or max_light >= 0):
+        if self.emitters.count and (max_light is None or max_light >= 0) and (
+                max_light != 0 or self.settings.light_image):
             light_vertices = trace_light_subpaths(ctx, max_light)
 
         # Stage 3: camera subpaths (+ s = 0 and s = 1).
@@ -334,8 +361,9 @@ def render(scene, spp: int | None = None, seed: int = 0, sensor=0,
     """Render ``scene`` (a ``mi.Scene`` or a path to an XML file) with BDPT.
 
     Keyword settings: max_depth (-1), rr_depth (5), mis ("power" | "balance" |
-    "uniform"), light_image (True), hide_emitters (False), technique (None or
-    (s, t) / "s,t"), samples_per_pass (0 = automatic), memory_budget (bytes).
+    "uniform" | "lafortune"), light_image (True), hide_emitters (False), technique
+    (None or (s, t) / "s,t"), strategies ("all" | "pt" | "lt"), samples_per_pass
+    (0 = automatic), memory_budget (bytes).
     With ``strategy_images=True`` the result's ``strategies[(s, t)]`` holds every
     strategy's MIS-weighted image; they sum to ``image``.
     """

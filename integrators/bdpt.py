@@ -24,8 +24,10 @@ with the pinhole camera.
      - Subpath vertex at which Russian roulette starts. (Default: 5)
    * - mis
      - string
-     - MIS heuristic: ``power`` (exponent 2), ``balance`` or ``uniform``
-       (all strategies that can make a path weigh the same). (Default: power)
+     - MIS heuristic: ``power`` (exponent 2), ``balance``, ``uniform`` (all
+       strategies that can make a path weigh the same) or ``lafortune``
+       (Lafortune & Willems' specularity-based weights; no light image).
+       (Default: power)
    * - light_image
      - boolean
      - Include the t = 1 (light tracing) strategies; without them MIS
@@ -37,6 +39,11 @@ with the pinhole camera.
      - string
      - Render a single strategy ``"s,t"`` without MIS weighting (for tests and
        for studying strategies). (Default: all strategies)
+   * - strategies
+     - string
+     - ``all``; ``pt`` = only path tracing with next-event estimation (s <= 1),
+       ``lt`` = only light tracing (t = 1): the same engine without MIS's other
+       strategies, to show what they buy. (Default: all)
    * - samples_per_pass
      - integer
      - Samples per pixel per pass; 0 chooses it so the vertex buffers fit
@@ -64,7 +71,7 @@ import drjit as dr
 import mitsuba as mi
 
 _PARAMS = {"max_depth": int, "rr_depth": int, "mis": str, "light_image": bool,
-           "hide_emitters": bool, "technique": str, "samples_per_pass": int,
+           "hide_emitters": bool, "technique": str, "strategies": str, "samples_per_pass": int,
            "memory_budget": int}
 
 

@@ -195,3 +195,15 @@ def test_spectral_and_mono_variants(variant):
     p = subprocess.run([sys.executable, "-c", _VARIANT_CHECK, variant, scene_path("cornell-box.xml")],
                        capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stdout + p.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("subset, ref", [("pt", "path"), ("lt", "ptracer")])
+def test_strategy_subsets_match_their_mitsuba_counterparts(box, subset, ref):
+    """strategies="pt" (s <= 1, MIS between emitter hits and NEE) and "lt" (t = 1)
+    are complete estimators on their own: they agree with path and ptracer."""
+    res = bdpt_drjit.render(box, spp=4, max_depth=4, strategies=subset, strategy_images=True)
+    assert all((s <= 1 and t >= 2) if subset == "pt" else t == 1 for (s, t) in res.strategies)
+    ours = [bdpt_drjit.render(box, spp=32, seed=s, max_depth=4, strategies=subset).image for s in range(10)]
+    theirs = [mitsuba_render(box, ref, 64, seed=40 + s, max_depth=4) for s in range(10)]
+    assert_statistically_equal(ours, theirs, what="strategies=" + subset)
