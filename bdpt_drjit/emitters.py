@@ -82,7 +82,9 @@ class Emitters:
             kind = _KINDS[cls]
             kinds.append(kind)
             shape = e.get_shape()
-            inv_area.append(1.0 / shape.surface_area()[0] if kind == AREA else 1.0)
+            area = shape.surface_area()[0] if kind == AREA else 1.0
+            # A zero-area emitter emits nothing: pdf_pos 0 makes its light paths invalid.
+            inv_area.append(1.0 / area if area > 0 else 0.0)
             cos_cutoff.append(self._spot_cos_cutoff(e) if kind == SPOT else -1.0)
         if self.count:
             self.ptrs = scene.emitters_dr()

@@ -111,7 +111,6 @@ class PassContext:
     camera_weight: mi.Spectrum = None
     rays: mi.UInt32 = None
     light_ratio: float = 1.0        # N_L / N_C
-    last_delta: mi.Bool = None      # whether the last BSDF sample was a delta lobe
 
     @property
     def use_mis(self) -> bool:

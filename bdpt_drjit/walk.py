@@ -26,7 +26,8 @@ def _interaction(si: mi.SurfaceInteraction3f) -> mi.Interaction3f:
 
 def _scatter(ctx, sampler, si, bsdf, mode_ctx, rev_ctx, d_vcm, d_vc, beta, alpha, eta,
              active, depth, importance: bool):
-    """Sample the BSDF at the current vertex and extend the subpath by one ray."""
+    """Sample the BSDF at the current vertex and extend the subpath by one ray;
+    also returns whether a delta lobe was sampled."""
     bs, weight = bsdf.sample(mode_ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
     wo = si.to_world(bs.wo)
     _, cos_out, ok = geometric_cosines(si, wo)
@@ -44,11 +45,13 @@ def _scatter(ctx, sampler, si, bsdf, mode_ctx, rev_ctx, d_vcm, d_vc, beta, alpha
         q = dr.minimum(dr.max(mi.unpolarized_spectrum(alpha))
                        * (1.0 if importance else dr.square(eta)), 0.95)
         active = active & (sampler.next_1d(active) < q)
+        # alpha carries the 1/q as Mitsuba's throughput does; without it q would
+        # shrink geometrically and rare survivors become fireflies.
         beta = beta * dr.rcp(q)
+        alpha = alpha * dr.rcp(q)
     active = active & (dr.max(mi.unpolarized_spectrum(beta)) > 0)
     ray = si.spawn_ray(wo)
-    ctx.last_delta = delta
-    return ray, d_vcm, d_vc, beta, alpha, eta, active
+    return ray, d_vcm, d_vc, beta, alpha, eta, active, delta
 
 
 def trace_light_subpaths(ctx, max_vertex: int | None) -> list[Vertex]:
@@ -95,7 +98,7 @@ def trace_light_subpaths(ctx, max_vertex: int | None) -> list[Vertex]:
             connect.light_vertex_to_camera(ctx, si, bsdf, vertex, i + 1, u_cam, connectible)
         if max_vertex is None or i < max_vertex:
             prev_p = si.p
-            ray, d_vcm, d_vc, beta, alpha, eta, active = _scatter(
+            ray, d_vcm, d_vc, beta, alpha, eta, active, _ = _scatter(
                 ctx, sampler, si, bsdf, IMPORTANCE, RADIANCE, d_vcm, d_vc, beta, alpha,
                 eta, active, i, importance=True)
         else:
@@ -149,11 +152,11 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None):
             ctx.film.put_strategy(ctx.film.strategy_block(1, j + 1), cam.pos, ray.wavelengths, c, active)
         if max_vertex is None or j < max_vertex:
             prev = _interaction(si)
-            ray, d_vcm, d_vc, beta, alpha, eta, active = _scatter(
+            ray, d_vcm, d_vc, beta, alpha, eta, active, delta = _scatter(
                 ctx, sampler, si, bsdf, RADIANCE, IMPORTANCE, d_vcm, d_vc, beta, alpha,
                 eta, active, j, importance=False)
             if ctx.h.is_lafortune:
-                lw = lw * mis.lafortune_specularity(bsdf.flags(), ctx.last_delta)
+                lw = lw * mis.lafortune_specularity(bsdf.flags(), delta)
         else:
             active = mi.Bool(False)
         sampler.schedule_state()
