@@ -22,7 +22,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import mis
-from .records import (Vertex, adjoint_correction, finite, geometric_cosines,
+from .records import (Vertex, eval_adjoint, finite, geometric_cosines,
                       reverse_pdf, spectrum_nonzero)
 
 RADIANCE = mi.BSDFContext(mi.TransportMode.Radiance)
@@ -103,7 +103,7 @@ def light_vertex_to_camera(ctx, si, bsdf, vertex: Vertex, s: int, sample, active
     _, cos_out, ok = geometric_cosines(si, ds.d)
     active = active & ok
     wo = si.to_local(ds.d)
-    f = bsdf.eval(IMPORTANCE, si, wo, active) * adjoint_correction(si, ds.d)
+    f = eval_adjoint(bsdf, si, wo, active)
     contrib = vertex.beta * f * importance * ctx.camera_weight
     active = active & spectrum_nonzero(contrib)
     _count(ctx, active)
@@ -155,7 +155,7 @@ def connect_vertices(ctx, light: Vertex, cam: Vertex, si_c, bsdf_c):
     active = active & (ok_c & ok_l)
     wc, wl = si_c.to_local(w), si_l.to_local(-w)
     f_c = bsdf_c.eval(RADIANCE, si_c, wc, active)
-    f_l = bsdf_l.eval(IMPORTANCE, si_l, wl, active) * adjoint_correction(si_l, -w)
+    f_l = eval_adjoint(bsdf_l, si_l, wl, active)
     contrib = cam.beta * f_c * f_l * light.beta / dist2
     active = active & spectrum_nonzero(contrib)
     _count(ctx, active)

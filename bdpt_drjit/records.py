@@ -72,3 +72,18 @@ def spectrum_nonzero(x) -> mi.Bool:
 def finite(x):
     """Zero where a value is not finite: the guard behind every contribution."""
     return dr.select(dr.isfinite(x), x, 0.0)
+
+
+def eval_adjoint(bsdf: mi.BSDF, si: mi.SurfaceInteraction3f, wo_local: mi.Vector3f, active):
+    """What a light subpath needs at this vertex for the direction wo (Veach eq. 5.17):
+    f*(wi -> wo) |cos_s(wi)| |cos_g(wo)| / |cos_g(wi)|, from the radiance-mode BSDF with
+    the two directions swapped, f(wo -> wi) |cos_s(wi)|: the BSDF applies its own
+    shading normal (a normal or bump map perturbs it inside the BSDF, where si.sh_frame
+    does not see it), and the value is exactly what a path tracer integrates."""
+    wi = mi.Vector3f(si.wi)
+    si.wi = wo_local
+    f = bsdf.eval(mi.BSDFContext(mi.TransportMode.Radiance), si, wi, active)
+    si.wi = wi
+    num = dr.abs(dr.dot(si.n, si.to_world(wo_local)))
+    den = dr.abs(dr.dot(si.n, si.to_world(wi)))
+    return f * finite(num / den)

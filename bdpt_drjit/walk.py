@@ -12,7 +12,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import connect, mis
-from .records import Vertex, adjoint_correction, geometric_cosines, reverse_pdf
+from .records import Vertex, adjoint_correction, eval_adjoint, geometric_cosines, reverse_pdf
 
 RADIANCE, IMPORTANCE = connect.RADIANCE, connect.IMPORTANCE
 
@@ -31,10 +31,13 @@ def _scatter(ctx, sampler, si, bsdf, mode_ctx, rev_ctx, d_vcm, d_vc, beta, alpha
     bs, weight = bsdf.sample(mode_ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
     wo = si.to_world(bs.wo)
     _, cos_out, ok = geometric_cosines(si, wo)
-    if importance:
-        weight *= adjoint_correction(si, wo)
     active = active & (ok & (bs.pdf > 0))
     delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+    if importance:
+        # Smooth lobes: the adjoint from the BSDF itself (records.eval_adjoint); a delta
+        # lobe cannot be evaluated, so it keeps the correction with si.sh_frame.
+        smooth = eval_adjoint(bsdf, si, bs.wo, active & ~delta) * dr.rcp(bs.pdf)
+        weight = dr.select(delta, weight * adjoint_correction(si, wo), smooth)
     pdf_rev = reverse_pdf(bsdf, rev_ctx, si, bs.wo, active)
     d_vcm, d_vc = mis.after_scatter(ctx.h, d_vcm, d_vc, cos_out, bs.pdf, pdf_rev, delta)
     beta = beta * weight

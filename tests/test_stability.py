@@ -32,10 +32,11 @@ Engine bugs this suite found:
     without the 1/q of earlier survivals, so survival decayed like albedo^(depth^2/2)
     and rare survivors were fireflies, case closed-box-a0.9 (test_fireflies) -- fixed
     in 0050381;
-  * light subpaths apply the shading-normal (adjoint) correction with si.sh_frame, but
+  * light subpaths applied the shading-normal (adjoint) correction with si.sh_frame, but
     a ``normalmap``/``bumpmap`` BSDF perturbs the normal inside the BSDF: light-traced
-    strategies carry the wrong energy on normal-mapped surfaces, case normal-map and
-    test_light_tracing_with_shading_normals -- OPEN, xfail(strict).
+    strategies carried the wrong energy on normal-mapped surfaces (strategy (2,1) -32%),
+    case normal-map and test_light_tracing_with_shading_normals -- fixed: the adjoint is
+    now the radiance-mode BSDF with its directions swapped (records.eval_adjoint).
 Limitations found (asserted as measured, not xfail'ed):
   * Mitsuba offsets every spawned ray by (1 + max|p|) * 8.9e-5 world units, an absolute
     floor: in a scene 2e-3 across that is 4.5 % of the scene, and both Mitsuba's
@@ -223,10 +224,6 @@ def _stress16(name, **params):
     return lambda: stress(name, resx=16, resy=16, **params)
 
 
-NORMAL_MAP_BUG = ("engine bug: light subpaths apply the shading-normal (adjoint) correction with "
-                  "si.sh_frame, but a normalmap/bumpmap BSDF perturbs the normal inside the BSDF "
-                  "(see test_light_tracing_with_shading_normals)")
-
 CASES = {
     # -- light tracing fails: the camera sees only a mirror / sits in a glass box --------
     "mirror-view": Case(_stress16("mirror-view.xml"), 16, {"max_depth": 6}, _path(64, max_depth=6)),
@@ -266,8 +263,7 @@ CASES = {
                             _path(64, max_depth=6)),
     "smooth-lowpoly": Case(_stress16("smooth-lowpoly.xml"), 16, {"max_depth": 6},
                            _path(64, max_depth=6)),
-    "normal-map": Case(_stress16("normal-map.xml"), 32, {"max_depth": 3}, _path(128, max_depth=3),
-                       bugs={"reference": NORMAL_MAP_BUG}),
+    "normal-map": Case(_stress16("normal-map.xml"), 32, {"max_depth": 3}, _path(128, max_depth=3)),
     # -- radiometry ----------------------------------------------------------------------
     # (passes of 8 spp: with 104 emitters every pass costs ~0.5 s, see the report)
     "many-lights": Case(many_lights_scene, 16, {"max_depth": 5}, _ptracer(64, max_depth=5), split=8,
@@ -525,7 +521,7 @@ def test_scale():
 
 @pytest.mark.parametrize("name", [
     "smooth-lowpoly",
-    pytest.param("normal-map", marks=pytest.mark.xfail(reason=NORMAL_MAP_BUG, strict=True)),
+    "normal-map",
 ])
 def test_light_tracing_with_shading_normals(name):
     """Light tracing alone, technique (2,1) unweighted, against Mitsuba's path tracer
