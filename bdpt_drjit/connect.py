@@ -68,7 +68,8 @@ def next_event(ctx, si, bsdf, vertex: Vertex, sample, active):
     _, cos_cam, ok = geometric_cosines(si, ds.d)
     active = active & ok
     wo = si.to_local(ds.d)
-    contrib = vertex.beta * bsdf.eval(RADIANCE, si, wo, active) * spec
+    f, bsdf_pdf = bsdf.eval_pdf(RADIANCE, si, wo, active)
+    contrib = vertex.beta * f * spec
     active = active & spectrum_nonzero(contrib)
     _count(ctx, active)
     active = active & ~scene.ray_test(si.spawn_ray_to(ds.p), active)
@@ -76,7 +77,7 @@ def next_event(ctx, si, bsdf, vertex: Vertex, sample, active):
         contrib *= mis.weight_lafortune(vertex.lw, mis.lafortune_specularity(bsdf.flags()),
                                         "nee", ds.delta)
     elif ctx.use_mis:
-        bsdf_pdf = dr.select(ds.delta, 0.0, bsdf.pdf(RADIANCE, si, wo, active))
+        bsdf_pdf = dr.select(ds.delta, 0.0, bsdf_pdf)
         bsdf_rev = reverse_pdf(bsdf, IMPORTANCE, si, wo, active)
         _, emission_pdf, cos_light, _ = ctx.emitters.emission_pdfs(ds.emitter, ds.n, -ds.d, active)
         # The weight uses Mitsuba's pdf_emitter_direction, not ds.pdf: the s = 0
@@ -103,13 +104,12 @@ def light_vertex_to_camera(ctx, si, bsdf, vertex: Vertex, s: int, sample, active
     _, cos_out, ok = geometric_cosines(si, ds.d)
     active = active & ok
     wo = si.to_local(ds.d)
-    f = eval_adjoint(bsdf, si, wo, active)
+    f, rev = eval_adjoint(bsdf, si, wo, active)
     contrib = vertex.beta * f * importance * ctx.camera_weight
     active = active & spectrum_nonzero(contrib)
     _count(ctx, active)
     active = active & ~scene.ray_test(si.spawn_ray_to(ds.p), active)
     if ctx.use_mis:
-        rev = reverse_pdf(bsdf, RADIANCE, si, wo, active)
         # imp = pdf_w(camera) / d^2, so the camera's area density at y_i is imp * cos.
         cam_pdf_a = mi.unpolarized_spectrum(importance)[0] * cos_out / ctx.light_ratio
         contrib *= mis.weight_light_to_camera(ctx.h, vertex.d_vcm, vertex.d_vc, cam_pdf_a, rev)
@@ -140,11 +140,12 @@ def emitter_to_camera(ctx, es, sample):
     ctx.film.splat(1, ds.uv, ctx.wavelengths, finite(contrib), active)
 
 
-def connect_vertices(ctx, light: Vertex, cam: Vertex, si_c, bsdf_c):
-    """s, t >= 2: connect light vertex y_{s-1} and camera vertex z_{t-1}
-    (``si_c``/``bsdf_c``: z_{t-1} rebuilt once for all light vertices)."""
+def connect_vertices(ctx, light: Vertex, cam: Vertex, bsdf_c):
+    """s, t >= 2: connect a stored light vertex y_{s-1} to the camera vertex z_{t-1}
+    the camera walk is at (``cam.si``, ``bsdf_c``: its live interaction and BSDF)."""
     active = light.connectible & cam.connectible
-    si_l = light.interaction(active)
+    si_c = cam.si
+    si_l = mi.SurfaceInteraction3f(light.si)    # a copy: eval_adjoint swaps its wi
     bsdf_l = si_l.bsdf()
     d = si_l.p - si_c.p
     dist2 = dr.squared_norm(d)
@@ -154,8 +155,8 @@ def connect_vertices(ctx, light: Vertex, cam: Vertex, si_c, bsdf_c):
     _, cos_l, ok_l = geometric_cosines(si_l, -w)
     active = active & (ok_c & ok_l)
     wc, wl = si_c.to_local(w), si_l.to_local(-w)
-    f_c = bsdf_c.eval(RADIANCE, si_c, wc, active)
-    f_l = eval_adjoint(bsdf_l, si_l, wl, active)
+    f_c, pdf_c = bsdf_c.eval_pdf(RADIANCE, si_c, wc, active)
+    f_l, rev_l = eval_adjoint(bsdf_l, si_l, wl, active)
     contrib = cam.beta * f_c * f_l * light.beta / dist2
     active = active & spectrum_nonzero(contrib)
     _count(ctx, active)
@@ -163,10 +164,8 @@ def connect_vertices(ctx, light: Vertex, cam: Vertex, si_c, bsdf_c):
     if ctx.use_mis and ctx.h.is_lafortune:
         contrib *= mis.weight_lafortune(cam.lw, mis.lafortune_specularity(bsdf_c.flags()), "connect")
     elif ctx.use_mis:
-        pdf_c = bsdf_c.pdf(RADIANCE, si_c, wc, active)
         pdf_l = bsdf_l.pdf(IMPORTANCE, si_l, wl, active)
         rev_c = reverse_pdf(bsdf_c, IMPORTANCE, si_c, wc, active)
-        rev_l = reverse_pdf(bsdf_l, RADIANCE, si_l, wl, active)
         contrib *= mis.weight_connect(ctx.h, light.d_vcm, light.d_vc, cam.d_vcm, cam.d_vc,
                                       pdf_c * cos_l / dist2, rev_c,
                                       pdf_l * cos_c / dist2, rev_l)

@@ -1,9 +1,13 @@
 """Per-vertex records of the subpath walks (struct-of-arrays, one entry per lane).
 
-A vertex keeps only what connections and MIS need: the intersection it was found
-by (rebuilt into a full SurfaceInteraction on demand, which reproduces BSDF
-evaluation exactly and costs far less memory than storing it), the throughput up
-to it, and the two MIS quantities of mis.py.
+Only light vertices are stored: camera vertices are connected to them inside the
+camera walk, while their surface interaction is live.  A stored vertex keeps what
+connections and MIS need: the parts of its SurfaceInteraction that BSDFs and
+textures read (``compact_interaction``), the throughput up to it, and the two MIS
+quantities of mis.py.  Storing the surface costs ~60 bytes more per vertex than
+storing the ray and preliminary intersection, but rebuilding the interaction (a
+virtual call over the scene's shapes) for every connection took half of the
+connection time.
 """
 from __future__ import annotations
 
@@ -13,19 +17,30 @@ import drjit as dr
 import mitsuba as mi
 
 
+def compact_interaction(si: mi.SurfaceInteraction3f) -> mi.SurfaceInteraction3f:
+    """A copy of ``si`` holding only what BSDF evaluation reads: position, normals,
+    shading frame and tangents (normal and bump maps), uv (textures), shape and
+    primitive (mesh attributes, the BSDF pointer), wi, time and wavelengths.
+    (Not the distance t: the record is never tested with ``is_valid``.)
+    Curvature (dn_du, dn_dv) and ray differentials stay zero, as on every
+    interaction of the walks (no ray differentials are traced)."""
+    c = dr.zeros(mi.SurfaceInteraction3f)
+    c.p, c.n, c.uv, c.sh_frame = si.p, si.n, si.uv, si.sh_frame
+    c.dp_du, c.dp_dv, c.wi = si.dp_du, si.dp_dv, si.wi
+    c.shape, c.instance, c.prim_index = si.shape, si.instance, si.prim_index
+    c.time, c.wavelengths = si.time, si.wavelengths
+    return c
+
+
 @dataclass
 class Vertex:
     """Subpath vertex z_j (camera) or y_i (light), i, j >= 1."""
-    pi: mi.PreliminaryIntersection3f   # how the vertex was found ...
-    ray: mi.Ray3f                      # ... by this ray (wi = -ray.d)
+    si: mi.SurfaceInteraction3f        # light vertices: compact_interaction(si)
     beta: mi.Spectrum                  # throughput from the subpath's start to here
     d_vcm: mi.Float                    # MIS recursion state (mis.py)
     d_vc: mi.Float
     connectible: mi.Bool               # exists and has a non-delta BSDF lobe
     lw: mi.Float = None                # camera vertices, mis="lafortune": prod of W before it
-
-    def interaction(self, active) -> mi.SurfaceInteraction3f:
-        return self.pi.compute_surface_interaction(self.ray, mi.RayFlags.All, active)
 
 
 def geometric_cosines(si: mi.SurfaceInteraction3f, wo_world: mi.Vector3f):
@@ -75,15 +90,19 @@ def finite(x):
 
 
 def eval_adjoint(bsdf: mi.BSDF, si: mi.SurfaceInteraction3f, wo_local: mi.Vector3f, active):
-    """What a light subpath needs at this vertex for the direction wo (Veach eq. 5.17):
-    f*(wi -> wo) |cos_s(wi)| |cos_g(wo)| / |cos_g(wi)|, from the radiance-mode BSDF with
-    the two directions swapped, f(wo -> wi) |cos_s(wi)|: the BSDF applies its own
-    shading normal (a normal or bump map perturbs it inside the BSDF, where si.sh_frame
-    does not see it), and the value is exactly what a path tracer integrates."""
+    """What a light subpath needs at this vertex for the direction wo (Veach eq. 5.17),
+    and the reverse density, both from one ``eval_pdf`` call (one virtual call).
+
+    Value: f*(wi -> wo) |cos_s(wi)| |cos_g(wo)| / |cos_g(wi)|, from the radiance-mode
+    BSDF with the two directions swapped, f(wo -> wi) |cos_s(wi)|: the BSDF applies its
+    own shading normal (a normal or bump map perturbs it inside the BSDF, where
+    si.sh_frame does not see it), and the value is exactly what a path tracer integrates.
+    Reverse pdf: the radiance-mode density of sampling si.wi had the path come from wo
+    (what ``reverse_pdf(bsdf, RADIANCE, ...)`` returns)."""
     wi = mi.Vector3f(si.wi)
     si.wi = wo_local
-    f = bsdf.eval(mi.BSDFContext(mi.TransportMode.Radiance), si, wi, active)
+    f, pdf_rev = bsdf.eval_pdf(mi.BSDFContext(mi.TransportMode.Radiance), si, wi, active)
     si.wi = wi
     num = dr.abs(dr.dot(si.n, si.to_world(wo_local)))
     den = dr.abs(dr.dot(si.n, si.to_world(wi)))
-    return f * finite(num / den)
+    return f * finite(num / den), pdf_rev

@@ -32,11 +32,12 @@ from .mis import Heuristic
 from .walk import trace_camera_subpaths, trace_light_subpaths
 
 DEFAULT_MEMORY_BUDGET = 2 * 1024 ** 3
-# Bytes per lane: one stored vertex (intersection, ray, throughput, MIS state) and
-# the transient state of one depth step.  Calibrated on peak RSS: 2.1 kB per lane
-# at max_depth 8 and 3.0 kB at max_depth 10 (Cornell box, 1920x1080).
-_VERTEX_BYTES = 110
-_LANE_BYTES = 700
+# Bytes per lane: stored light vertices (compact interaction, throughput, MIS
+# state: 141 bytes each, at most max_depth of them) and the transient state of one
+# depth step.  Calibrated on peak RSS (Cornell box, 1920x1080, 1 spp): 1221 bytes per
+# lane at max_depth 8, 1501 at max_depth 10; the estimate below errs high.
+_VERTEX_BYTES = 145
+_LANE_BYTES = 400
 
 
 @dataclass
@@ -115,6 +116,15 @@ class PassContext:
     @property
     def use_mis(self) -> bool:
         return self.settings.technique is None and self.settings.strategies != "lt"
+
+    def connects(self, i: int) -> bool:
+        """Does some enabled strategy s, t >= 2 connect light vertex y_i?"""
+        st = self.settings
+        if st.technique is not None:
+            return st.technique[0] == i + 1 and st.technique[1] >= 2 and self.enabled(*st.technique)
+        # Unbounded depth: whether (i+1, t) is enabled does not depend on t >= 2.
+        t_max = st.max_depth + 1 if st.max_depth >= 0 else 2
+        return any(self.enabled(i + 1, t) for t in range(2, t_max + 1))
 
     @property
     def pt_only(self) -> bool:
@@ -223,7 +233,7 @@ class Renderer:
     # -- planning ----------------------------------------------------------------
     def _lane_bytes(self) -> int:
         d = self.settings.max_depth if self.settings.max_depth >= 0 else 24
-        return 2 * d * _VERTEX_BYTES + _LANE_BYTES
+        return d * _VERTEX_BYTES + _LANE_BYTES
 
     def _plan(self) -> None:
         """Split spp x pixels into passes of at most ``max_lanes`` lanes."""
@@ -313,28 +323,11 @@ class Renderer:
                 max_light != 0 or self.settings.light_image):
             light_vertices = trace_light_subpaths(ctx, max_light)
 
-        # Stage 3: camera subpaths (+ s = 0 and s = 1).
-        cam_vertices, radiance = trace_camera_subpaths(ctx, cam, max_cam)
+        # Stage 3: camera subpaths (+ s = 0, s = 1, and s, t >= 2 connections to the
+        # stored light vertices, in the same kernel per depth).
+        radiance = trace_camera_subpaths(ctx, cam, max_cam, light_vertices)
 
-        # Stage 4: connections s, t >= 2, one kernel per camera vertex z_j that
-        # rebuilds z_j once and connects it to every light vertex y_i.  Lanes whose
-        # vertices died are masked, not compacted: compacting sparse pairs with
-        # dr.compress + gathers measured 13% slower overall (Cornell box, 256^2).
-        for j, cv in enumerate(cam_vertices, start=1):
-            pairs = [(i + 1, lv) for i, lv in enumerate(light_vertices, start=1)
-                     if ctx.enabled(i + 1, j + 1)]
-            if not pairs:
-                continue
-            si_c = cv.interaction(cv.connectible)
-            bsdf_c = si_c.bsdf()
-            for s, lv in pairs:
-                c = connect.connect_vertices(ctx, lv, cv, si_c, bsdf_c)
-                radiance += c
-                self.film.put_strategy(self.film.strategy_block(s, j + 1), cam.pos,
-                                       cam.ray.wavelengths, c, True)
-            dr.eval(radiance, ctx.rays)
-
-        # Stage 5: film.
+        # Stage 4: film.
         self.film.put_camera(cam.pos, cam.ray.wavelengths, radiance, 1.0)
         self.film.light_paths += lanes
         self.rays += int(dr.sum(ctx.rays)[0])

@@ -12,7 +12,8 @@ import drjit as dr
 import mitsuba as mi
 
 from . import connect, mis
-from .records import Vertex, adjoint_correction, eval_adjoint, geometric_cosines, reverse_pdf
+from .records import (Vertex, adjoint_correction, compact_interaction, eval_adjoint,
+                      geometric_cosines, reverse_pdf)
 
 RADIANCE, IMPORTANCE = connect.RADIANCE, connect.IMPORTANCE
 
@@ -36,9 +37,11 @@ def _scatter(ctx, sampler, si, bsdf, mode_ctx, rev_ctx, d_vcm, d_vc, beta, alpha
     if importance:
         # Smooth lobes: the adjoint from the BSDF itself (records.eval_adjoint); a delta
         # lobe cannot be evaluated, so it keeps the correction with si.sh_frame.
-        smooth = eval_adjoint(bsdf, si, bs.wo, active & ~delta) * dr.rcp(bs.pdf)
-        weight = dr.select(delta, weight * adjoint_correction(si, wo), smooth)
-    pdf_rev = reverse_pdf(bsdf, rev_ctx, si, bs.wo, active)
+        # The same call gives the reverse (radiance-mode) pdf.
+        f_adj, pdf_rev = eval_adjoint(bsdf, si, bs.wo, active)
+        weight = dr.select(delta, weight * adjoint_correction(si, wo), f_adj * dr.rcp(bs.pdf))
+    else:
+        pdf_rev = reverse_pdf(bsdf, rev_ctx, si, bs.wo, active)
     d_vcm, d_vc = mis.after_scatter(ctx.h, d_vcm, d_vc, cos_out, bs.pdf, pdf_rev, delta)
     beta = beta * weight
     alpha = alpha * weight
@@ -57,8 +60,10 @@ def _scatter(ctx, sampler, si, bsdf, mode_ctx, rev_ctx, d_vcm, d_vc, beta, alpha
     return ray, d_vcm, d_vc, beta, alpha, eta, active, delta
 
 
-def trace_light_subpaths(ctx, max_vertex: int | None) -> list[Vertex]:
-    """Light vertices y_1..y_n (n <= max_vertex), splatting t = 1 on the way."""
+def trace_light_subpaths(ctx, max_vertex: int | None) -> list[Vertex | None]:
+    """Light vertices y_1..y_n (n <= max_vertex), splatting t = 1 on the way.
+    Entry i - 1 holds y_i, or None where no enabled strategy connects y_i to a
+    camera vertex (such as the deepest one, used by t = 1 only): it is not stored."""
     sampler, scene = ctx.light_sampler, ctx.scene
     es = ctx.emitters.sample_emission(ctx.time, ctx.wavelengths, sampler.next_1d(),
                                       sampler.next_2d(), sampler.next_2d())
@@ -94,8 +99,7 @@ def trace_light_subpaths(ctx, max_vertex: int | None) -> list[Vertex]:
             d_vcm, d_vc = mis.after_hit(ctx.h, d_vcm, d_vc, dist2, cos_in)
         bsdf = si.bsdf()
         connectible = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        vertex = Vertex(pi=pi, ray=mi.Ray3f(ray), beta=beta, d_vcm=d_vcm, d_vc=d_vc,
-                        connectible=connectible)
+        vertex = Vertex(si=si, beta=beta, d_vcm=d_vcm, d_vc=d_vc, connectible=connectible)
         u_cam = sampler.next_2d()
         if ctx.enabled(i + 1, 1):
             connect.light_vertex_to_camera(ctx, si, bsdf, vertex, i + 1, u_cam, connectible)
@@ -107,15 +111,21 @@ def trace_light_subpaths(ctx, max_vertex: int | None) -> list[Vertex]:
         else:
             active = mi.Bool(False)
         sampler.schedule_state()
-        dr.eval(vertex, ray, d_vcm, d_vc, beta, alpha, eta, active, prev_p, ctx.rays)
-        vertices.append(vertex)
+        stored = None
+        if ctx.connects(i):
+            stored = Vertex(si=compact_interaction(si), beta=vertex.beta, d_vcm=vertex.d_vcm,
+                            d_vc=vertex.d_vc, connectible=connectible)
+        dr.eval(ray, d_vcm, d_vc, beta, alpha, eta, active, prev_p, ctx.rays,
+                *([] if stored is None else [stored]))
+        vertices.append(stored)
         i += 1
     return vertices
 
 
-def trace_camera_subpaths(ctx, cam, max_vertex: int | None):
-    """Camera vertices z_1..z_n with the s = 0 and s = 1 strategies; returns the
-    vertices and the per-lane radiance those strategies gathered."""
+def trace_camera_subpaths(ctx, cam, max_vertex: int | None, light_vertices: list[Vertex]):
+    """Camera vertices z_1..z_n with the s = 0 and s = 1 strategies, and each z_j
+    connected to the stored light vertices (s, t >= 2) while its interaction is live;
+    returns the per-lane radiance of all these strategies."""
     sampler, scene, sensor = ctx.camera_sampler, ctx.scene, ctx.sensor
     ray = mi.Ray3f(cam.ray)
     beta, active = mi.Spectrum(cam.weight), mi.Bool(True)
@@ -124,7 +134,6 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None):
     lw = mi.Float(1.0)               # mis="lafortune": prod of W(z_m) over m < j
     prev = None
     radiance = dr.zeros(mi.Spectrum, dr.width(ray.o))
-    vertices: list[Vertex] = []
     j = 1
     while (max_vertex is None or j <= max_vertex) and (j == 1 or dr.any(active)):
         ctx.rays += dr.select(active, 1, 0)
@@ -142,8 +151,7 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None):
             d_vcm, d_vc = mis.after_hit(ctx.h, d_vcm, d_vc, dr.squared_norm(si.p - prev.p), cos_in)
         bsdf = si.bsdf()
         connectible = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        vertex = Vertex(pi=pi, ray=ray, beta=beta, d_vcm=d_vcm, d_vc=d_vc, connectible=connectible,
-                        lw=lw)
+        vertex = Vertex(si=si, beta=beta, d_vcm=d_vcm, d_vc=d_vc, connectible=connectible, lw=lw)
         if ctx.enabled(0, j + 1):
             c = connect.emission_hit(ctx, si, beta, d_vcm, d_vc, prev, active, lw)
             radiance += c
@@ -153,6 +161,14 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None):
             c = connect.next_event(ctx, si, bsdf, vertex, u_light, connectible)
             radiance += c
             ctx.film.put_strategy(ctx.film.strategy_block(1, j + 1), cam.pos, ray.wavelengths, c, active)
+        # s, t >= 2: z_j to every light vertex y_i, in this kernel.  Dead lanes are
+        # masked, not compacted (dr.compress + gathers measured 13% slower).
+        for i, lv in enumerate(light_vertices, start=1):
+            if lv is not None and ctx.enabled(i + 1, j + 1):
+                c = connect.connect_vertices(ctx, lv, vertex, bsdf)
+                radiance += c
+                ctx.film.put_strategy(ctx.film.strategy_block(i + 1, j + 1), cam.pos,
+                                      ray.wavelengths, c, True)
         if max_vertex is None or j < max_vertex:
             prev = _interaction(si)
             ray, d_vcm, d_vc, beta, alpha, eta, active, delta = _scatter(
@@ -163,7 +179,6 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None):
         else:
             active = mi.Bool(False)
         sampler.schedule_state()
-        dr.eval(vertex, radiance, ray, d_vcm, d_vc, beta, alpha, eta, active, prev, lw, ctx.rays)
-        vertices.append(vertex)
+        dr.eval(radiance, ray, d_vcm, d_vc, beta, alpha, eta, active, prev, lw, ctx.rays)
         j += 1
-    return vertices, radiance
+    return radiance
