@@ -2,9 +2,10 @@
 
     for each pass:
         camera rays       camera.sample_camera_rays      one lane per pixel sample
-        light subpaths    walk.trace_light_subpaths      + t = 1 splats
-        camera subpaths   walk.trace_camera_subpaths     + s = 0, s = 1
-        connections       connect.connect_vertices       s, t >= 2
+        light subpaths    walk.trace_light_subpaths      + t = 1 splats; stores y_i
+        camera subpaths   walk.trace_camera_subpaths     + s = 0, s = 1, and s, t >= 2
+                          (connect.connect_vertices: z_j to every stored y_i, in
+                          the kernel of depth j, while z_j's interaction is live)
         film              film.FilmAccumulator           camera block + light block
 
 Each camera sample i is paired with light subpath i (N_L = N_C), so the light image
@@ -15,7 +16,6 @@ very large films.  Peak memory therefore does not grow with spp.
 """
 from __future__ import annotations
 
-import math
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -25,7 +25,6 @@ import mitsuba as mi
 import numpy as np
 
 from . import camera as camera_stage
-from . import connect
 from .emitters import Emitters
 from .film import FilmAccumulator
 from .mis import Heuristic
@@ -229,6 +228,7 @@ class Renderer:
         self.time = 0.0
         self.rays = 0
         self._sample_count = 0       # camera samples = light paths so far
+        self._last_lanes = 0
 
     # -- planning ----------------------------------------------------------------
     def _lane_bytes(self) -> int:
@@ -236,12 +236,19 @@ class Renderer:
         return d * _VERTEX_BYTES + _LANE_BYTES
 
     def _plan(self) -> None:
-        """Split spp x pixels into passes of at most ``max_lanes`` lanes."""
+        """Split spp x pixels into passes of at most ``max_lanes`` lanes.
+
+        Automatic passes are made equal in size: Dr.Jit keeps freed buffers for
+        reuse by requests of the same size, so a smaller last pass would allocate a
+        second set beside the cached first one (measured: 1.9 -> 3.0 GB at 1920x1080
+        with passes of 1.38M and 0.70M lanes; 1.3 GB with two equal ones)."""
         max_lanes = max(1024, self.settings.memory_budget // self._lane_bytes())
         max_lanes = min(max_lanes, 2 ** 31)
+        explicit = self.settings.samples_per_pass
         # An explicit samples_per_pass is honoured up to the memory budget.
-        per_pass = min(self.settings.samples_per_pass or self.spp, max(1, max_lanes // self.pixels))
-        per_pass = min(per_pass, self.spp)
+        per_pass = min(explicit or self.spp, max(1, max_lanes // self.pixels), self.spp)
+        if not explicit or per_pass < explicit:
+            per_pass = -(-self.spp // -(-self.spp // per_pass))    # equal passes
         passes = []
         if self.pixels * per_pass <= max_lanes:
             done = 0
@@ -251,8 +258,9 @@ class Renderer:
                 n = self._accepted_count(min(per_pass, self.spp - done))
                 passes.append((0, self.pixels, n))
                 done += n
-        else:                          # very large film: pixel ranges at 1 spp
-            chunk = max_lanes
+        else:                          # very large film: equal pixel ranges at 1 spp
+            chunks = -(-self.pixels // max_lanes)
+            chunk = -(-self.pixels // chunks)
             for _ in range(self.spp):
                 for start in range(0, self.pixels, chunk):
                     passes.append((start, min(chunk, self.pixels - start), 1))
@@ -294,6 +302,10 @@ class Renderer:
             return
         pixel_offset, n_pixels, spp = self.plan[self.passes_done]
         lanes = n_pixels * spp
+        if self.passes_done and lanes != self._last_lanes:
+            # Buffers cached for the previous size would sit beside this pass's.
+            dr.flush_malloc_cache()
+        self._last_lanes = lanes
         start = time.perf_counter()
         with dr.suspend_grad():
             self._render_pass(pixel_offset, n_pixels, spp, lanes)
