@@ -43,6 +43,40 @@ class Vertex:
     lw: mi.Float = None                # camera vertices, mis="lafortune": prod of W before it
 
 
+def gather_vertex(v: Vertex, index: mi.UInt32) -> Vertex:
+    """The stored vertex of the lanes ``index`` (a compacted wavefront's home lanes).
+    Only lanes where the vertex is connectible read its record: deep vertices are
+    mostly dead, and each gathered field is a cache miss."""
+    live = dr.gather(mi.Bool, v.connectible, index)
+    return Vertex(si=dr.gather(mi.SurfaceInteraction3f, v.si, index, live),
+                  beta=dr.gather(mi.Spectrum, v.beta, index, live),
+                  d_vcm=dr.gather(mi.Float, v.d_vcm, index, live),
+                  d_vc=dr.gather(mi.Float, v.d_vc, index, live),
+                  connectible=live,
+                  lw=None if v.lw is None else dr.gather(mi.Float, v.lw, index, live))
+
+
+def _concat(parts):
+    """Concatenate Dr.Jit values (arrays, nested arrays, structs) lane-wise."""
+    x = parts[0]
+    tp = type(x)
+    if hasattr(tp, "DRJIT_STRUCT"):
+        out = dr.zeros(tp)
+        for name in tp.DRJIT_STRUCT:
+            setattr(out, name, _concat([getattr(p, name) for p in parts]))
+        return out
+    if dr.depth_v(x) > 1:
+        return tp(*[_concat([p[k] for p in parts]) for k in range(len(x))])
+    return dr.concat(parts)
+
+
+def concat_vertices(parts: list[Vertex]) -> Vertex:
+    """The records of several vertex lists, one after the other."""
+    return Vertex(si=_concat([v.si for v in parts]), beta=_concat([v.beta for v in parts]),
+                  d_vcm=_concat([v.d_vcm for v in parts]), d_vc=_concat([v.d_vc for v in parts]),
+                  connectible=_concat([v.connectible for v in parts]))
+
+
 def geometric_cosines(si: mi.SurfaceInteraction3f, wo_world: mi.Vector3f):
     """(cos_in, cos_out, ok) w.r.t. the geometric normal for wi = si.wi and wo.
 

@@ -28,7 +28,7 @@ from . import camera as camera_stage
 from .emitters import Emitters
 from .film import FilmAccumulator
 from .mis import Heuristic
-from .walk import trace_camera_subpaths, trace_light_subpaths
+from .walk import sparse_light_vertices, trace_camera_subpaths, trace_light_subpaths
 
 DEFAULT_MEMORY_BUDGET = 2 * 1024 ** 3
 # Bytes per lane: stored light vertices (compact interaction, throughput, MIS
@@ -337,7 +337,8 @@ class Renderer:
 
         # Stage 3: camera subpaths (+ s = 0, s = 1, and s, t >= 2 connections to the
         # stored light vertices, in the same kernel per depth).
-        radiance = trace_camera_subpaths(ctx, cam, max_cam, light_vertices)
+        sparse = sparse_light_vertices(ctx, light_vertices, lanes)
+        radiance = trace_camera_subpaths(ctx, cam, max_cam, light_vertices, sparse)
 
         # Stage 4: film.
         self.film.put_camera(cam.pos, cam.ray.wavelengths, radiance, 1.0)

@@ -2,18 +2,25 @@
 
 Each step intersects, updates the MIS state (mis.py), records the vertex, adds the
 strategies that need nothing but this vertex (t = 1 splats on light subpaths; s = 0
-and s = 1 on camera subpaths), samples the BSDF and applies Russian roulette.  One
-``dr.eval`` per depth; depth-dependent choices are Python branches that give a
+and s = 1 on camera subpaths), samples the BSDF and applies Russian roulette.  A
+camera step also connects its vertex z_j to the stored light vertices (s, t >= 2).
+One ``dr.eval`` per depth; depth-dependent choices are Python branches that give a
 handful of kernel variants, never a kernel per depth.
+
+Sparse work is compacted (``COMPACT_BELOW``): once few camera lanes live, the camera
+wavefront shrinks to them; light vertices alive in few lanes are connected as a list
+of items.  Neither changes a sample: the same seed gives the same image.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass, replace
 
 import drjit as dr
 import mitsuba as mi
 
 from . import connect, mis
-from .records import (Vertex, adjoint_correction, compact_interaction, eval_adjoint,
-                      geometric_cosines, reverse_pdf)
+from .records import (Vertex, adjoint_correction, compact_interaction, concat_vertices,
+                      eval_adjoint, gather_vertex, geometric_cosines, reverse_pdf)
 
 RADIANCE, IMPORTANCE = connect.RADIANCE, connect.IMPORTANCE
 
@@ -122,20 +129,170 @@ def trace_light_subpaths(ctx, max_vertex: int | None) -> list[Vertex | None]:
     return vertices
 
 
-def trace_camera_subpaths(ctx, cam, max_vertex: int | None, light_vertices: list[Vertex]):
+# Compact the camera wavefront to its live lanes once fewer than this fraction of
+# its lanes are alive.  Deep vertices are sparse (Russian roulette), yet a masked
+# lane still runs the arithmetic of every connection: with max_depth = -1 the
+# Cornell box spent half its time on camera depths where ~1% of lanes lived.
+COMPACT_BELOW = 0.25
+_COMPACT_MIN_LANES = 4096
+
+
+class _Draws:
+    """The camera sampler's numbers for the lanes of the wavefront.  Once the
+    wavefront is compacted, the numbers of a depth are drawn for all lanes in one
+    kernel (``prefetch``) and gathered at the live ones, so a surviving lane sees the
+    numbers it would see uncompacted (a lane's sequence advances whenever it is
+    alive, in both cases)."""
+
+    def __init__(self, sampler):
+        self.sampler, self.lane, self.queue = sampler, None, []
+
+    def prefetch(self, dims: list[int]) -> None:
+        self.queue = [self.sampler.next_1d() if d == 1 else self.sampler.next_2d() for d in dims]
+        self.sampler.schedule_state()
+        dr.eval(self.queue)
+
+    def next_1d(self, active=True):
+        if self.lane is None:
+            return self.sampler.next_1d(active)
+        return dr.gather(mi.Float, self.queue.pop(0), self.lane)
+
+    def next_2d(self, active=True):
+        if self.lane is None:
+            return self.sampler.next_2d(active)
+        return dr.gather(mi.Point2f, self.queue.pop(0), self.lane)
+
+
+@dataclass
+class SparseLights:
+    """Light vertices alive in few lanes (fewer than ``COMPACT_BELOW``), connected
+    from the dense camera depths as one list of (home lane, y_i) items rather than
+    as masked full-width pairs: with max_depth = -1 a camera kernel otherwise ran
+    the arithmetic of ~25 light vertices on every lane."""
+    indices: set                     # i of the sparse light vertices
+    lane: mi.UInt32 = None           # item -> home lane
+    s: mi.UInt32 = None              # item -> s = i + 1
+    light: Vertex = None             # item -> record of y_i
+    groups: list = None              # (offset, count) of each vertex's items
+    radiance: mi.Spectrum = None     # item -> contributions over camera depths
+    rays: mi.UInt32 = None
+
+
+def sparse_light_vertices(ctx, light_vertices: list[Vertex | None], width: int) -> SparseLights:
+    """Find the sparse light vertices and gather their live lanes into items."""
+    sparse = SparseLights(indices=set())
+    if COMPACT_BELOW <= 0 or width < _COMPACT_MIN_LANES or ctx.film.strategy_images:
+        return sparse                # (strategy images need a block per (s, t))
+    parts, lanes, ss, groups, offset = [], [], [], [], 0
+    for i, lv in enumerate(light_vertices, start=1):
+        if lv is None:
+            continue
+        n = dr.count(lv.connectible)[0]
+        if n >= COMPACT_BELOW * width:
+            continue
+        sparse.indices.add(i)
+        if n == 0:
+            continue
+        idx = dr.compress(lv.connectible)
+        parts.append(gather_vertex(lv, idx))
+        lanes.append(idx)
+        ss.append(dr.full(mi.UInt32, i + 1, n))
+        groups.append((offset, n))
+        offset += n
+    if parts:
+        sparse.light = concat_vertices(parts)
+        sparse.lane, sparse.s = dr.concat(lanes), dr.concat(ss)
+        sparse.groups = groups
+        sparse.radiance = dr.zeros(mi.Spectrum, offset)
+        sparse.rays = dr.zeros(mi.UInt32, offset)
+        dr.eval(sparse.light, sparse.lane, sparse.s, sparse.radiance, sparse.rays)
+    return sparse
+
+
+def _connect_sparse(ctx, sparse: SparseLights, cam_record: Vertex, t: int) -> None:
+    """s, t >= 2 between camera vertex z_{t-1} (``cam_record``, full width) and the
+    sparse light vertices' items."""
+    enabled = dr.zeros(mi.Bool, dr.width(sparse.lane))
+    for i in sparse.indices:
+        if ctx.enabled(i + 1, t):
+            enabled |= sparse.s == i + 1
+    light = replace(sparse.light, connectible=sparse.light.connectible & enabled)
+    cam = gather_vertex(cam_record, sparse.lane)
+    rays, ctx.rays = ctx.rays, sparse.rays
+    sparse.radiance += connect.connect_vertices(ctx, light, cam, cam.si.bsdf())
+    sparse.rays, ctx.rays = ctx.rays, rays
+    dr.eval(sparse.radiance, sparse.rays)
+
+
+def _send_sparse_home(sparse: SparseLights, radiance, rays) -> None:
+    """Add the items' radiance to their home lanes, one light vertex at a time: a
+    lane appears once per vertex, so no two additions race (the image stays
+    deterministic)."""
+    for offset, n in sparse.groups:
+        item = dr.arange(mi.UInt32, n) + offset
+        dr.scatter_reduce(dr.ReduceOp.Add, radiance, dr.gather(mi.Spectrum, sparse.radiance, item),
+                          dr.gather(mi.UInt32, sparse.lane, item))
+        dr.eval(radiance)
+    dr.scatter_reduce(dr.ReduceOp.Add, rays, sparse.rays, sparse.lane)
+
+
+def trace_camera_subpaths(ctx, cam, max_vertex: int | None, light_vertices: list[Vertex],
+                          sparse: SparseLights | None = None):
     """Camera vertices z_1..z_n with the s = 0 and s = 1 strategies, and each z_j
     connected to the stored light vertices (s, t >= 2) while its interaction is live;
-    returns the per-lane radiance of all these strategies."""
+    returns the per-lane radiance of all these strategies.
+
+    When few lanes survive, the wavefront is compacted (``COMPACT_BELOW``): its state
+    is gathered at the live lanes, ``lane`` maps them home (pbrt-v4's wavefront
+    work items carry their pixel index the same way), light vertices are gathered
+    at ``lane``, and radiance and ray counts are scattered back."""
     sampler, scene, sensor = ctx.camera_sampler, ctx.scene, ctx.sensor
+    sparse = sparse or SparseLights(indices=set())
+    draws = _Draws(sampler)
     ray = mi.Ray3f(cam.ray)
     beta, active = mi.Spectrum(cam.weight), mi.Bool(True)
     alpha, eta = dr.ones(mi.Spectrum), mi.Float(1.0)
     d_vcm, d_vc = mi.Float(0.0), mi.Float(0.0)
     lw = mi.Float(1.0)               # mis="lafortune": prod of W(z_m) over m < j
     prev = None
-    radiance = dr.zeros(mi.Spectrum, dr.width(ray.o))
+    pos = cam.pos
+    width = dr.width(ray.o)
+    radiance = dr.zeros(mi.Spectrum, width)
+    lane = None                      # compacted: the home lane of each lane
+    full_radiance = full_rays = None
+
+    def send_home():
+        """Add the compacted lanes' radiance and ray counts to their home lanes."""
+        dr.scatter_reduce(dr.ReduceOp.Add, full_radiance, radiance, lane)
+        dr.scatter_reduce(dr.ReduceOp.Add, full_rays, ctx.rays, lane)
+
     j = 1
-    while (max_vertex is None or j <= max_vertex) and (j == 1 or dr.any(active)):
+    while max_vertex is None or j <= max_vertex:
+        if j > 1:
+            alive = dr.count(active)[0]
+            if alive == 0:
+                break
+            if alive < COMPACT_BELOW * width and width >= _COMPACT_MIN_LANES:
+                if lane is None:
+                    full_radiance, full_rays = radiance, ctx.rays
+                else:
+                    send_home()
+                idx = dr.compress(active)
+                ray, beta, alpha, eta, d_vcm, d_vc, prev, lw, pos = (
+                    dr.gather(type(x), x, idx)
+                    for x in (ray, beta, alpha, eta, d_vcm, d_vc, prev, lw, pos))
+                lane = idx if lane is None else dr.gather(mi.UInt32, lane, idx)
+                width = dr.width(idx)
+                active = dr.full(mi.Bool, True, width)
+                radiance = dr.zeros(mi.Spectrum, width)
+                ctx.rays = dr.zeros(mi.UInt32, width)
+                draws.lane = lane
+            if lane is not None:
+                # This depth's draws, in the order below: NEE, then BSDF lobe and
+                # direction and Russian roulette (see _scatter).
+                scatters = max_vertex is None or j < max_vertex
+                draws.prefetch([2] + ([1, 2] if scatters else [])
+                               + ([1] if scatters and j >= ctx.settings.rr_depth else []))
         ctx.rays += dr.select(active, 1, 0)
         pi = scene.ray_intersect_preliminary(ray, False, active)
         si = pi.compute_surface_interaction(ray, mi.RayFlags.All, active)
@@ -155,30 +312,50 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None, light_vertices: list
         if ctx.enabled(0, j + 1):
             c = connect.emission_hit(ctx, si, beta, d_vcm, d_vc, prev, active, lw)
             radiance += c
-            ctx.film.put_strategy(ctx.film.strategy_block(0, j + 1), cam.pos, ray.wavelengths, c, active)
-        u_light = sampler.next_2d()
+            ctx.film.put_strategy(ctx.film.strategy_block(0, j + 1), pos, ray.wavelengths, c, active)
+        u_light = draws.next_2d()
         if ctx.enabled(1, j + 1):
             c = connect.next_event(ctx, si, bsdf, vertex, u_light, connectible)
             radiance += c
-            ctx.film.put_strategy(ctx.film.strategy_block(1, j + 1), cam.pos, ray.wavelengths, c, active)
+            ctx.film.put_strategy(ctx.film.strategy_block(1, j + 1), pos, ray.wavelengths, c, active)
         # s, t >= 2: z_j to every light vertex y_i, in this kernel.  Dead lanes are
-        # masked, not compacted (dr.compress + gathers measured 13% slower).
+        # masked; compacting the pairs themselves (dr.compress per pair + gathers)
+        # measured 13% slower than this at max_depth 8.
+        sparse_now = lane is None and sparse.lane is not None and any(
+            ctx.enabled(i + 1, j + 1) for i in sparse.indices)
+        cam_record = None
+        if sparse_now:                # for _connect_sparse, after this kernel
+            cam_record = Vertex(si=compact_interaction(si), beta=beta, d_vcm=d_vcm, d_vc=d_vc,
+                                connectible=connectible, lw=lw)
         for i, lv in enumerate(light_vertices, start=1):
             if lv is not None and ctx.enabled(i + 1, j + 1):
+                if lane is None and i in sparse.indices:
+                    continue
+                if lane is not None:
+                    lv = gather_vertex(lv, lane)
                 c = connect.connect_vertices(ctx, lv, vertex, bsdf)
                 radiance += c
-                ctx.film.put_strategy(ctx.film.strategy_block(i + 1, j + 1), cam.pos,
+                ctx.film.put_strategy(ctx.film.strategy_block(i + 1, j + 1), pos,
                                       ray.wavelengths, c, True)
         if max_vertex is None or j < max_vertex:
             prev = _interaction(si)
             ray, d_vcm, d_vc, beta, alpha, eta, active, delta = _scatter(
-                ctx, sampler, si, bsdf, RADIANCE, IMPORTANCE, d_vcm, d_vc, beta, alpha,
+                ctx, draws, si, bsdf, RADIANCE, IMPORTANCE, d_vcm, d_vc, beta, alpha,
                 eta, active, j, importance=False)
             if ctx.h.is_lafortune:
                 lw = lw * mis.lafortune_specularity(bsdf.flags(), delta)
         else:
-            active = mi.Bool(False)
+            active = dr.zeros(mi.Bool, width)
         sampler.schedule_state()
-        dr.eval(radiance, ray, d_vcm, d_vc, beta, alpha, eta, active, prev, lw, ctx.rays)
+        dr.eval(radiance, ray, d_vcm, d_vc, beta, alpha, eta, active, prev, lw, ctx.rays,
+                *([] if cam_record is None else [cam_record]))
+        if cam_record is not None:
+            _connect_sparse(ctx, sparse, cam_record, j + 1)
         j += 1
+    if lane is not None:
+        send_home()
+        radiance, ctx.rays = full_radiance, full_rays
+    if sparse.lane is not None:
+        _send_sparse_home(sparse, radiance, ctx.rays)
+    dr.eval(radiance, ctx.rays)
     return radiance
