@@ -43,11 +43,11 @@ class Vertex:
     lw: mi.Float = None                # camera vertices, mis="lafortune": prod of W before it
 
 
-def gather_vertex(v: Vertex, index: mi.UInt32) -> Vertex:
+def gather_vertex(v: Vertex, index: mi.UInt32, active=True) -> Vertex:
     """The stored vertex of the lanes ``index`` (a compacted wavefront's home lanes).
     Only lanes where the vertex is connectible read its record: deep vertices are
     mostly dead, and each gathered field is a cache miss."""
-    live = dr.gather(mi.Bool, v.connectible, index)
+    live = dr.gather(mi.Bool, v.connectible, index, active)
     return Vertex(si=dr.gather(mi.SurfaceInteraction3f, v.si, index, live),
                   beta=dr.gather(mi.Spectrum, v.beta, index, live),
                   d_vcm=dr.gather(mi.Float, v.d_vcm, index, live),

@@ -28,7 +28,7 @@ from . import camera as camera_stage
 from .emitters import Emitters
 from .film import FilmAccumulator
 from .mis import Heuristic
-from .walk import sparse_light_vertices, trace_camera_subpaths, trace_light_subpaths
+from .walk import SparseLights, trace_camera_subpaths, trace_light_subpaths
 
 DEFAULT_MEMORY_BUDGET = 2 * 1024 ** 3
 # Bytes per lane: stored light vertices (compact interaction, throughput, MIS
@@ -330,14 +330,13 @@ class Renderer:
         dr.eval(cam)
 
         # Stage 2: light subpaths (+ t = 1 splats).
-        light_vertices = []
+        light_vertices, sparse = [], SparseLights(ctx, lanes)
         if self.emitters.count and (max_light is None or max_light >= 0) and (
                 max_light != 0 or self.settings.light_image):
-            light_vertices = trace_light_subpaths(ctx, max_light)
+            light_vertices = trace_light_subpaths(ctx, max_light, sparse)
 
         # Stage 3: camera subpaths (+ s = 0, s = 1, and s, t >= 2 connections to the
         # stored light vertices, in the same kernel per depth).
-        sparse = sparse_light_vertices(ctx, light_vertices, lanes)
         radiance = trace_camera_subpaths(ctx, cam, max_cam, light_vertices, sparse)
 
         # Stage 4: film.

@@ -13,7 +13,7 @@ of items.  Neither changes a sample: the same seed gives the same image.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import drjit as dr
 import mitsuba as mi
@@ -67,10 +67,11 @@ def _scatter(ctx, sampler, si, bsdf, mode_ctx, rev_ctx, d_vcm, d_vc, beta, alpha
     return ray, d_vcm, d_vc, beta, alpha, eta, active, delta
 
 
-def trace_light_subpaths(ctx, max_vertex: int | None) -> list[Vertex | None]:
+def trace_light_subpaths(ctx, max_vertex: int | None, sparse: SparseLights) -> list[Vertex | None]:
     """Light vertices y_1..y_n (n <= max_vertex), splatting t = 1 on the way.
     Entry i - 1 holds y_i, or None where no enabled strategy connects y_i to a
-    camera vertex (such as the deepest one, used by t = 1 only): it is not stored."""
+    camera vertex (such as the deepest one, used by t = 1 only), or where ``sparse``
+    took it over."""
     sampler, scene = ctx.light_sampler, ctx.scene
     es = ctx.emitters.sample_emission(ctx.time, ctx.wavelengths, sampler.next_1d(),
                                       sampler.next_2d(), sampler.next_2d())
@@ -124,8 +125,11 @@ def trace_light_subpaths(ctx, max_vertex: int | None) -> list[Vertex | None]:
                             d_vc=vertex.d_vc, connectible=connectible)
         dr.eval(ray, d_vcm, d_vc, beta, alpha, eta, active, prev_p, ctx.rays,
                 *([] if stored is None else [stored]))
+        if stored is not None and sparse.add(i, stored):
+            stored = None
         vertices.append(stored)
         i += 1
+    sparse.finish()
     return vertices
 
 
@@ -163,50 +167,64 @@ class _Draws:
         return dr.gather(mi.Point2f, self.queue.pop(0), self.lane)
 
 
-@dataclass
+_NO_ITEM = 0xFFFFFFFF
+
+
 class SparseLights:
-    """Light vertices alive in few lanes (fewer than ``COMPACT_BELOW``), connected
-    from the dense camera depths as one list of (home lane, y_i) items rather than
-    as masked full-width pairs: with max_depth = -1 a camera kernel otherwise ran
-    the arithmetic of ~25 light vertices on every lane."""
-    indices: set                     # i of the sparse light vertices
-    lane: mi.UInt32 = None           # item -> home lane
-    s: mi.UInt32 = None              # item -> s = i + 1
-    light: Vertex = None             # item -> record of y_i
-    groups: list = None              # (offset, count) of each vertex's items
-    radiance: mi.Spectrum = None     # item -> contributions over camera depths
-    rays: mi.UInt32 = None
+    """Light vertices alive in few lanes (fewer than ``COMPACT_BELOW``).  The light
+    walk hands each such vertex over as soon as it is stored (``add``): its live
+    lanes become (home lane, y_i) items and its full-width record is dropped, so
+    memory stays bounded with max_depth = -1, where subpaths reach ~40 vertices.
+    Dense camera depths connect to all items in one kernel (``_connect_sparse``)
+    instead of running masked full-width pairs; a compacted camera wavefront finds
+    its lanes' items through ``maps[i]`` (home lane -> item, 4 bytes per lane)."""
 
+    def __init__(self, ctx, width: int):
+        self.width = width
+        self.on = (COMPACT_BELOW > 0 and width >= _COMPACT_MIN_LANES
+                   and not ctx.film.strategy_images)    # (those need a block per (s, t))
+        self.indices: set[int] = set()   # i of the sparse light vertices
+        self.maps: dict[int, mi.UInt32] = {}
+        self.lane = self.s = self.light = self.radiance = self.rays = None
+        self.groups: list[tuple[int, int]] = []          # (offset, count) per vertex
+        self._parts, self._lanes, self._s, self._count = [], [], [], 0
 
-def sparse_light_vertices(ctx, light_vertices: list[Vertex | None], width: int) -> SparseLights:
-    """Find the sparse light vertices and gather their live lanes into items."""
-    sparse = SparseLights(indices=set())
-    if COMPACT_BELOW <= 0 or width < _COMPACT_MIN_LANES or ctx.film.strategy_images:
-        return sparse                # (strategy images need a block per (s, t))
-    parts, lanes, ss, groups, offset = [], [], [], [], 0
-    for i, lv in enumerate(light_vertices, start=1):
-        if lv is None:
-            continue
-        n = dr.count(lv.connectible)[0]
-        if n >= COMPACT_BELOW * width:
-            continue
-        sparse.indices.add(i)
-        if n == 0:
-            continue
-        idx = dr.compress(lv.connectible)
-        parts.append(gather_vertex(lv, idx))
-        lanes.append(idx)
-        ss.append(dr.full(mi.UInt32, i + 1, n))
-        groups.append((offset, n))
-        offset += n
-    if parts:
-        sparse.light = concat_vertices(parts)
-        sparse.lane, sparse.s = dr.concat(lanes), dr.concat(ss)
-        sparse.groups = groups
-        sparse.radiance = dr.zeros(mi.Spectrum, offset)
-        sparse.rays = dr.zeros(mi.UInt32, offset)
-        dr.eval(sparse.light, sparse.lane, sparse.s, sparse.radiance, sparse.rays)
-    return sparse
+    def add(self, i: int, vertex: Vertex) -> bool:
+        """Take y_i (an evaluated record) if it is sparse; says whether it did."""
+        if not self.on:
+            return False
+        n = dr.count(vertex.connectible)[0]
+        if n >= COMPACT_BELOW * self.width:
+            return False
+        self.indices.add(i)
+        if n > 0:
+            idx = dr.compress(vertex.connectible)
+            part = gather_vertex(vertex, idx)
+            item = dr.arange(mi.UInt32, n) + self._count
+            self.maps[i] = dr.full(mi.UInt32, _NO_ITEM, self.width)
+            dr.scatter(self.maps[i], item, idx)
+            dr.eval(part, self.maps[i])
+            self._parts.append(part)
+            self._lanes.append(idx)
+            self._s.append(dr.full(mi.UInt32, i + 1, n))
+            self.groups.append((self._count, n))
+            self._count += n
+        return True
+
+    def finish(self) -> None:
+        """One list of all items, after the light walk."""
+        if self._parts:
+            self.light = concat_vertices(self._parts)
+            self.lane, self.s = dr.concat(self._lanes), dr.concat(self._s)
+            self.radiance = dr.zeros(mi.Spectrum, self._count)
+            self.rays = dr.zeros(mi.UInt32, self._count)
+            dr.eval(self.light, self.lane, self.s, self.radiance, self.rays)
+        self._parts, self._lanes, self._s = [], [], []
+
+    def gather(self, i: int, lane: mi.UInt32) -> Vertex:
+        """y_i at the home lanes ``lane`` (not connectible where it has no item)."""
+        item = dr.gather(mi.UInt32, self.maps[i], lane)
+        return gather_vertex(self.light, item, item != _NO_ITEM)
 
 
 def _connect_sparse(ctx, sparse: SparseLights, cam_record: Vertex, t: int) -> None:
@@ -237,7 +255,7 @@ def _send_sparse_home(sparse: SparseLights, radiance, rays) -> None:
 
 
 def trace_camera_subpaths(ctx, cam, max_vertex: int | None, light_vertices: list[Vertex],
-                          sparse: SparseLights | None = None):
+                          sparse: SparseLights):
     """Camera vertices z_1..z_n with the s = 0 and s = 1 strategies, and each z_j
     connected to the stored light vertices (s, t >= 2) while its interaction is live;
     returns the per-lane radiance of all these strategies.
@@ -247,7 +265,6 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None, light_vertices: list
     work items carry their pixel index the same way), light vertices are gathered
     at ``lane``, and radiance and ray counts are scattered back."""
     sampler, scene, sensor = ctx.camera_sampler, ctx.scene, ctx.sensor
-    sparse = sparse or SparseLights(indices=set())
     draws = _Draws(sampler)
     ray = mi.Ray3f(cam.ray)
     beta, active = mi.Spectrum(cam.weight), mi.Bool(True)
@@ -327,16 +344,23 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None, light_vertices: list
         if sparse_now:                # for _connect_sparse, after this kernel
             cam_record = Vertex(si=compact_interaction(si), beta=beta, d_vcm=d_vcm, d_vc=d_vc,
                                 connectible=connectible, lw=lw)
-        for i, lv in enumerate(light_vertices, start=1):
-            if lv is not None and ctx.enabled(i + 1, j + 1):
-                if lane is None and i in sparse.indices:
+        for i in range(1, len(light_vertices) + 1):
+            lv = light_vertices[i - 1]
+            if not ctx.enabled(i + 1, j + 1):
+                continue
+            if lane is None:
+                if lv is None:       # not stored, or among the sparse items
                     continue
-                if lane is not None:
-                    lv = gather_vertex(lv, lane)
-                c = connect.connect_vertices(ctx, lv, vertex, bsdf)
-                radiance += c
-                ctx.film.put_strategy(ctx.film.strategy_block(i + 1, j + 1), pos,
-                                      ray.wavelengths, c, True)
+            elif lv is not None:
+                lv = gather_vertex(lv, lane)
+            elif i in sparse.maps:
+                lv = sparse.gather(i, lane)
+            else:
+                continue
+            c = connect.connect_vertices(ctx, lv, vertex, bsdf)
+            radiance += c
+            ctx.film.put_strategy(ctx.film.strategy_block(i + 1, j + 1), pos,
+                                  ray.wavelengths, c, True)
         if max_vertex is None or j < max_vertex:
             prev = _interaction(si)
             ray, d_vcm, d_vc, beta, alpha, eta, active, delta = _scatter(
