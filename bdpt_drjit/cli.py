@@ -43,7 +43,8 @@ COMMANDS = ("render", "merge", "info")
 # (at most spp/16 samples per pixel and about this many lanes, fewer on the CPU
 # where a lane costs more) so there are many.
 _TIMED_PASS_LANES = {"llvm": 1 << 16, "cuda": 1 << 20}
-_SUPPORTED_EMITTERS = {"AreaLight": "area", "PointLight": "point", "SpotLight": "spot"}
+_SUPPORTED_EMITTERS = {"AreaLight": "area", "PointLight": "point", "SpotLight": "spot",
+                       "ConstantBackgroundEmitter": "constant", "EnvironmentMapEmitter": "envmap"}
 _SUPPORTED_SENSORS = {"PerspectiveCamera": "perspective"}
 _BSDF_NAMES = {
     "SmoothDiffuse": "diffuse", "TwoSidedBRDF": "twosided", "SmoothDielectric": "dielectric",
@@ -791,7 +792,7 @@ def cmd_info(args) -> int:
         name = plugin_name(e)
         ok = e.class_name() in _SUPPORTED_EMITTERS
         lines.append("emitter:    %s%s" % (name, "" if ok else
-                                            "  [refused: supported emitters are area, point, spot]"))
+                                            "  [refused: supported emitters are area, point, spot, constant, envmap]"))
         if not ok:
             problems.append("emitter plugin '%s' is not supported" % name)
 

@@ -59,6 +59,27 @@ def emission_hit(ctx, si, beta, d_vcm, d_vc, prev: mi.Interaction3f | None, acti
     return dr.select(hit, finite(contrib), 0.0)
 
 
+def environment_hit(ctx, ray, beta, d_vcm, d_vc, prev: mi.Interaction3f | None, active, lw=None):
+    """s = 0, t = j + 1: the camera ray leaving z_{j-1} escaped to the environment.
+
+    ``d_vcm``, ``d_vc``: the camera state after the last scatter (solid angle at
+    z_{j-1}); the rival strategies' densities are solid-angle ones too (SmallVCM's
+    background light).  A camera ray that escapes at once (``prev`` None) has no
+    rival: y_0 at infinity cannot be connected to the pinhole."""
+    env = ctx.emitters.environment
+    le = ctx.emitters.environment_radiance(env, -ray.d, ray.wavelengths, ray.time, active)
+    contrib = beta * le
+    if ctx.use_mis and ctx.h.is_lafortune:
+        contrib *= mis.weight_lafortune(lw, None, "hit")
+    elif ctx.use_mis and prev is not None:
+        direct_pdf, emission_pdf = ctx.emitters.environment_pdfs(
+            mi.EmitterPtr(env), prev, ray.d, active)
+        if ctx.pt_only:             # rivals: NEE only
+            d_vc = mi.Float(0.0)
+        contrib *= mis.weight_emission_hit(ctx.h, d_vcm, d_vc, direct_pdf, emission_pdf)
+    return dr.select(active, finite(contrib), 0.0)
+
+
 def next_event(ctx, si, bsdf, vertex: Vertex, sample, active):
     """s = 1, t = j + 1: sample a point on an emitter from z_j (Mitsuba's own light
     sampling, so its pdf includes the selection pmf) and connect to it."""
@@ -121,8 +142,9 @@ def emitter_to_camera(ctx, es, sample):
 
     Delta-position emitters are skipped: a pinhole sees a point light with
     probability zero (Mitsuba's path tracer and ptracer do not show them either).
+    So are environments: y_0 at infinity is seen by camera rays that escape (s = 0).
     """
-    active = es.valid & ~es.delta_pos
+    active = es.valid & ~es.delta_pos & ~es.infinite
     it = dr.zeros(mi.Interaction3f)
     it.p, it.n, it.time, it.wavelengths = es.p, es.n, ctx.time, ctx.wavelengths
     ds, importance = ctx.sensor.sample_direction(it, sample, active)

@@ -9,11 +9,19 @@ type       position (pdf_pos, area)    direction (pdf_dir, solid angle)
 area       uniform on its shape, 1/A   cosine hemisphere, cos / pi
 point      delta (discrete, 1)         uniform sphere, 1 / (4 pi)
 spot       delta (discrete, 1)         uniform cone, 1 / (2 pi (1 - cos_max))
+constant,  uniform on a disk of the    the emitter's own direction
+envmap     scene's bounding sphere     sampling (uniform sphere; the
+           radius R facing the ray,    envmap's luminance), Mitsuba's
+           1 / (pi R^2)                ``pdf_direction``
 =========  ==========================  ================================
 
+Environment emitters start light subpaths at infinity (VCM technical report,
+section 5.1 "infinite lights"; SmallVCM's background light): y_0 on the disk only
+places the ray, its "distance" to y_1 enters no pdf, and the camera strategies
+that would see it (s = 0 on a ray that escapes) use solid-angle densities.
 Emitter selection uses Mitsuba's own pmf (``scene.sample_emitter``), so light paths
-and next-event estimation agree on it.  Infinite emitters (constant, envmap,
-directional) and the others are refused with an error naming the plugin.
+and next-event estimation agree on it.  Directional and other emitters are refused
+with an error naming the plugin.
 """
 from __future__ import annotations
 
@@ -23,8 +31,9 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-AREA, POINT, SPOT = 0, 1, 2
-_KINDS = {"AreaLight": AREA, "PointLight": POINT, "SpotLight": SPOT}
+AREA, POINT, SPOT, ENV = 0, 1, 2, 3
+_KINDS = {"AreaLight": AREA, "PointLight": POINT, "SpotLight": SPOT,
+          "ConstantBackgroundEmitter": ENV, "EnvironmentMapEmitter": ENV}
 _XML_NAMES = {"AreaLight": "area", "PointLight": "point", "SpotLight": "spot",
               "ConstantBackgroundEmitter": "constant", "EnvironmentMapEmitter": "envmap",
               "DirectionalEmitter": "directional", "Projector": "projector",
@@ -49,11 +58,13 @@ def plugin_name(obj) -> str:
 class EmissionSample:
     """Light vertex y_0 and the ray leaving it (one per lane)."""
     p: mi.Point3f
-    n: mi.Normal3f          # emitter normal (area), spot axis (spot), 0 (point)
+    n: mi.Normal3f          # emitter normal (area), spot axis (spot), 0 (point),
+                            # the ray direction (environment: the disk's normal)
     uv: mi.Point2f
     d: mi.Vector3f          # emitted direction
     emitter: mi.EmitterPtr
     delta_pos: mi.Bool
+    infinite: mi.Bool       # environment: y_0 lies at infinity
     pos_pdf_a: mi.Float     # pmf * pdf_pos: density of y_0 when light paths start
     emission_pdf: mi.Float  # pos_pdf_a * pdf_dir(d)
     cos_emit: mi.Float      # |cos| at y_0 for area lights, 1 otherwise
@@ -67,22 +78,29 @@ class Emitters:
     def __init__(self, scene: mi.Scene):
         self.scene = scene
         emitters = scene.emitters()
+        # Environment light subpaths start on a disk just outside the scene's
+        # bounding sphere (a little larger, so y_0 is never inside geometry).
+        bsphere = scene.bbox().bounding_sphere() if scene.shapes() else None
+        self.env_center = mi.ScalarPoint3f(bsphere.center) if bsphere else mi.ScalarPoint3f(0)
+        self.env_radius = max(float(bsphere.radius) * 1.01, 1e-3) if bsphere else 1.0
         self.count = len(emitters)
         kinds, inv_area, cos_cutoff = [], [], []
+        self.kinds_present = set()
         for e in emitters:
             cls = e.class_name()
             if cls not in _KINDS:
-                kind_word = ("infinite (environment/directional) emitters"
-                             if mi.has_flag(e.flags(), mi.EmitterFlags.Infinite)
-                             else "this emitter type")
                 raise UnsupportedPluginError(
-                    "bdpt: emitter plugin '%s' is not supported yet (%s cannot start "
-                    "light subpaths here); supported emitters: area, point, spot"
-                    % (plugin_name(e), kind_word))
+                    "bdpt: emitter plugin '%s' is not supported yet (it cannot start "
+                    "light subpaths here); supported emitters: area, point, spot, "
+                    "constant, envmap" % plugin_name(e))
             kind = _KINDS[cls]
             kinds.append(kind)
-            shape = e.get_shape()
-            area = shape.surface_area()[0] if kind == AREA else 1.0
+            if kind == AREA:
+                area = e.get_shape().surface_area()[0]
+            elif kind == ENV:
+                area = math.pi * self.env_radius ** 2     # the disk y_0 starts on
+            else:
+                area = 1.0
             # A zero-area emitter emits nothing: pdf_pos 0 makes its light paths invalid.
             inv_area.append(1.0 / area if area > 0 else 0.0)
             cos_cutoff.append(self._spot_cos_cutoff(e) if kind == SPOT else -1.0)
@@ -99,21 +117,32 @@ class Emitters:
             self.inv_area = mi.Float(inv_area)
             self.cos_cutoff = mi.Float(cos_cutoff)
             self.kinds_present = set(kinds)
+        self.environment = scene.environment()      # at most one (Mitsuba's rule)
 
     @staticmethod
     def _spot_cos_cutoff(e) -> float:
         """cos(cutoff angle) of a spot light, recovered from its own ray sampling.
 
-        Mitsuba's spot samples a uniform cone, so weight = I(d) / pdf_cone; the
-        intensity along that direction comes from ``eval_direction``.
+        Mitsuba's spot samples a uniform cone, so weight = I(d) / pdf_cone wherever
+        it emits; the intensity along that direction comes from ``eval_direction``.
+        Several directions are tried, as a textured spot may be dark along some.
         """
-        ray, w = e.sample_ray(0.0, 0.5, mi.Point2f(0.5, 0.5), mi.Point2f(0.1, 0.0))
+        n = 64
+        k = dr.arange(mi.Float, n)
+        u = mi.Point2f((k + 0.5) / n, k * 0.618034 - dr.floor(k * 0.618034))
+        ray, w = e.sample_ray(0.0, 0.5, mi.Point2f(0.5, 0.5), u)
         it = dr.zeros(mi.Interaction3f)
         it.p = ray.o + ray.d
         ds = dr.zeros(mi.DirectionSample3f)
         ds.p, ds.d, ds.dist, ds.pdf, ds.delta = ray.o, -ray.d, 1.0, 1.0, True
         intensity = e.eval_direction(it, ds)
-        pdf = intensity[0][0] / w[0][0]
+        i_max = dr.max(mi.unpolarized_spectrum(intensity)).numpy()
+        w_max = dr.max(mi.unpolarized_spectrum(w)).numpy()
+        ok = (w_max > 0) & (i_max > 0)
+        if not ok.any():
+            raise UnsupportedPluginError("bdpt: could not determine the cone of spot "
+                                         "emitter %s (it emits nothing)" % e.id())
+        pdf = float((i_max[ok] / w_max[ok]).mean())
         cos_max = 1.0 - 1.0 / (2.0 * math.pi * pdf)
         if not (-1.0 <= cos_max < 1.0):
             raise UnsupportedPluginError("bdpt: could not determine the cone of spot "
@@ -125,14 +154,24 @@ class Emitters:
         ident = dr.reinterpret_array(mi.UInt32, emitter)
         return dr.gather(mi.UInt32, self.index_of_id, ident, active)
 
-    def pdf_direction(self, kind, cos_cutoff, n, d):
+    def pdf_direction(self, emitter, kind, cos_cutoff, n, d, active=True):
         """Emission-direction pdf (solid angle) of direction d leaving y_0.
 
         For a spot the cone pdf is constant wherever the spot emits at all, so no
-        axis is needed (Mitsuba's direct-sampling records carry none)."""
+        axis is needed (Mitsuba's direct-sampling records carry none).  For an
+        environment it is the emitter's own density of the direction -d it comes
+        from (pmf excluded)."""
         cone = dr.rcp(2.0 * dr.pi * (1.0 - cos_cutoff))
-        return dr.select(kind == AREA, dr.maximum(dr.dot(n, d), 0.0) * dr.inv_pi,
-                         dr.select(kind == SPOT, cone, 0.25 * dr.inv_pi))
+        pdf = dr.select(kind == AREA, dr.maximum(dr.dot(n, d), 0.0) * dr.inv_pi,
+                        dr.select(kind == SPOT, cone, 0.25 * dr.inv_pi))
+        if ENV in self.kinds_present:
+            is_env = active & (kind == ENV)
+            it = dr.zeros(mi.Interaction3f)
+            it.p = mi.Point3f(self.env_center)
+            ds = dr.zeros(mi.DirectionSample3f)
+            ds.d, ds.emitter = -d, emitter
+            pdf = dr.select(is_env, emitter.pdf_direction(it, ds, is_env), pdf)
+        return pdf
 
     def emission_pdfs(self, emitter, n, d_out, active=True):
         """(pos_pdf_a, emission_pdf, cos_emit, delta_pos) of emitting along d_out
@@ -142,10 +181,10 @@ class Emitters:
         pos = (self.scene.pdf_emitter(idx, active)
                * dr.gather(mi.Float, self.inv_area, idx, active))
         cos_cut = dr.gather(mi.Float, self.cos_cutoff, idx, active)
-        pdf_dir = self.pdf_direction(kind, cos_cut, n, d_out)
+        pdf_dir = self.pdf_direction(emitter, kind, cos_cut, n, d_out, active)
         is_area = kind == AREA
         cos_emit = dr.select(is_area, dr.abs(dr.dot(n, d_out)), 1.0)
-        return pos, pos * pdf_dir, cos_emit, ~is_area
+        return pos, pos * pdf_dir, cos_emit, (kind == POINT) | (kind == SPOT)
 
     def emitted(self, emitter, p, n, uv, d_out, delta_pos, wavelengths, time, active=True):
         """Radiance (area) or intensity (point, spot) leaving p along d_out.
@@ -186,16 +225,54 @@ class Emitters:
                           mi.warp.square_to_uniform_cone(u_dir, cos_cut))
         d = dr.select(kind == POINT, mi.warp.square_to_uniform_sphere(u_dir),
                       frame.to_world(local))
-        pdf_dir = self.pdf_direction(kind, cos_cut, ps.n, d)
+        is_delta = (kind == POINT) | (kind == SPOT)
+        is_env = kind == ENV
+        if ENV in self.kinds_present:
+            # Environment: the direction from the emitter's own sampling, then a point
+            # on the disk of radius R facing it, a distance R beyond the center.
+            it = dr.zeros(mi.Interaction3f)
+            it.p, it.time, it.wavelengths = mi.Point3f(self.env_center), time, wavelengths
+            ds_env, _ = emitter.sample_direction(it, u_dir, active & is_env)
+            disk = mi.warp.square_to_uniform_disk_concentric(u_pos) * self.env_radius
+            towards = mi.Frame3f(ds_env.d)
+            p_env = it.p + ds_env.d * self.env_radius + towards.s * disk.x + towards.t * disk.y
+            d = dr.select(is_env, -ds_env.d, d)
+            ps.p = dr.select(is_env, p_env, ps.p)
+            ps.n = dr.select(is_env, d, ps.n)
+            ps.uv = dr.select(is_env, 0.0, ps.uv)
+            pos_pdf = dr.select(is_env, pmf * dr.gather(mi.Float, self.inv_area, idx, active), pos_pdf)
+        pdf_dir = self.pdf_direction(emitter, kind, cos_cut, ps.n, d, active)
         emission_pdf = pos_pdf * pdf_dir
         cos_emit = dr.select(is_area, dr.abs(dr.dot(ps.n, d)), 1.0)
-        le = self.emitted(emitter, ps.p, ps.n, ps.uv, d, ~is_area, wavelengths, time, active)
+        le = self.emitted(emitter, ps.p, ps.n, ps.uv, d, is_delta, wavelengths, time,
+                          active & ~is_env)
+        if ENV in self.kinds_present:
+            le = dr.select(is_env, self.environment_radiance(emitter, d, wavelengths, time,
+                                                             active & is_env), le)
         beta = le * dr.select(emission_pdf > 0, cos_emit / emission_pdf, 0.0)
         valid = active & (emission_pdf > 0) & (dr.max(mi.unpolarized_spectrum(beta)) > 0)
         return EmissionSample(p=ps.p, n=ps.n, uv=ps.uv, d=d, emitter=emitter,
-                              delta_pos=~is_area, pos_pdf_a=pos_pdf,
+                              delta_pos=is_delta, infinite=is_env, pos_pdf_a=pos_pdf,
                               emission_pdf=emission_pdf, cos_emit=cos_emit,
                               beta=beta, valid=valid)
+
+    @staticmethod
+    def environment_radiance(emitter, d, wavelengths, time, active=True):
+        """Radiance an environment emitter sends along direction d (travelling away
+        from it), i.e. what a ray escaping along -d sees."""
+        si = dr.zeros(mi.SurfaceInteraction3f)
+        si.wi, si.wavelengths, si.time = d, wavelengths, time
+        return emitter.eval(si, active)
+
+    def environment_pdfs(self, emitter, ref: mi.Interaction3f, d_escape, active=True):
+        """(P_nee, emission_pdf) of an environment direction: the solid-angle density
+        with which next-event estimation from ``ref`` picks the escape direction
+        (pmf included), and the emission density of the ray coming back along it."""
+        ds = dr.zeros(mi.DirectionSample3f)
+        ds.d, ds.emitter, ds.time = d_escape, emitter, ref.time
+        nee = self.scene.pdf_emitter_direction(ref, ds, active)
+        _, emission, _, _ = self.emission_pdfs(emitter, -d_escape, -d_escape, active)
+        return nee, emission
 
     def nee_pdf_a(self, ref: mi.Interaction3f, p, n, uv, emitter, delta_pos, time, active=True):
         """P_nee(y | ref) in area measure at y (pmf included) for a point y on an

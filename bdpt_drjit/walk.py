@@ -101,7 +101,14 @@ def trace_light_subpaths(ctx, max_vertex: int | None, sparse: SparseLights) -> l
         dist2 = dr.squared_norm(si.p - prev_p)
         if i == 1:
             nee = ctx.emitters.nee_pdf_a(si, es.p, es.n, es.uv, es.emitter, es.delta_pos,
-                                         ctx.time, active)
+                                         ctx.time, active & ~es.infinite)
+            if ctx.emitters.environment is not None:
+                # y_0 at infinity: the solid-angle NEE density, and no distance
+                # (tech. rep. section 5.1; SmallVCM skips dist^2 for infinite lights).
+                nee_w, _ = ctx.emitters.environment_pdfs(es.emitter, si, -ray.d,
+                                                         active & es.infinite)
+                nee = dr.select(es.infinite, nee_w, nee)
+                dist2 = dr.select(es.infinite, 1.0, dist2)
             d_vcm, d_vc = mis.light_first_hit(ctx.h, d_vc, nee, es.emission_pdf, dist2, cos_in)
         else:
             d_vcm, d_vc = mis.after_hit(ctx.h, d_vcm, d_vc, dist2, cos_in)
@@ -313,7 +320,14 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None, light_vertices: list
         ctx.rays += dr.select(active, 1, 0)
         pi = scene.ray_intersect_preliminary(ray, False, active)
         si = pi.compute_surface_interaction(ray, mi.RayFlags.All, active)
+        escaped = active & ~si.is_valid()
         active = active & (si.is_valid())
+        if ctx.emitters.environment is not None and ctx.enabled(0, j + 1):
+            # s = 0 on a ray that escaped: the environment (MIS state as left by the
+            # last scatter: no distance to convert, tech. rep. section 5.1).
+            c = connect.environment_hit(ctx, ray, beta, d_vcm, d_vc, prev, escaped, lw)
+            radiance += c
+            ctx.film.put_strategy(ctx.film.strategy_block(0, j + 1), pos, ray.wavelengths, c, escaped)
         cos_in = dr.abs(dr.dot(si.n, ray.d))
         if j == 1:
             # Camera pdf of z_1 (tech. rep. eq. 31): imp * d^2 = 1 / (A cos^3).

@@ -114,3 +114,32 @@ def assert_statistically_equal(a_imgs, b_imgs, blocks=4, p_false=1e-4, what="", 
         assert t < t_max, ("%s: region %s means %.5g vs %.5g (se %.3g, t=%.1f > %.1f at %.0f dof)"
                            % (what, r, ma.mean(), mb.mean(), se, t, t_max, dof))
     return worst
+
+
+def assert_matches_reference(imgs, ref, ref_var=None, ref_spp=1, blocks=4, p_false=1e-4,
+                             rel_floor=1e-3, what=""):
+    """Independent renders agree with a fixed reference image: block means (the whole
+    image and blocks x blocks regions) by a one-sample t-test on the renders' seeds.
+    The reference's own error enters as its per-sample variance image over ``ref_spp``
+    samples, plus ``rel_floor`` of its value: references rendered by another Mitsuba
+    version differ by ~1e-4 where a render has no variance at all (a constant
+    background seen directly)."""
+    a = np.stack(imgs).mean(axis=-1)
+    r_img = np.asarray(ref)[..., :3].mean(axis=-1)
+    v_img = None if ref_var is None else np.asarray(ref_var)[..., :3].mean(axis=-1)
+    h, w = r_img.shape
+    regions = [(slice(None), slice(None))]
+    for i in range(blocks):
+        for j in range(blocks):
+            regions.append((slice(i * h // blocks, (i + 1) * h // blocks),
+                            slice(j * w // blocks, (j + 1) * w // blocks)))
+    t_max = _t_threshold(len(a) - 1, p_false)
+    for reg in regions:
+        m = a[(slice(None),) + reg].mean(axis=(1, 2))
+        r = r_img[reg].mean()
+        var = m.var(ddof=1) / len(m) + (rel_floor * r) ** 2
+        if v_img is not None:
+            var += v_img[reg].mean() / (ref_spp * v_img[reg].size)
+        t = abs(m.mean() - r) / max(np.sqrt(var), 1e-12)
+        assert t < t_max, ("%s: region %s mean %.5g vs reference %.5g (t=%.1f > %.1f)"
+                           % (what, reg, m.mean(), r, t, t_max))

@@ -96,8 +96,6 @@ def _scene(emitter=None, sensor="perspective"):
 
 
 @pytest.mark.parametrize("emitter, name", [
-    ({"type": "constant"}, "constant"),
-    ({"type": "envmap", "bitmap": mi.Bitmap(np.ones((4, 8, 3), dtype=np.float32))}, "envmap"),
     ({"type": "directional", "direction": [0, 0, -1]}, "directional"),
 ])
 def test_unsupported_emitters_raise_naming_the_plugin(emitter, name):
