@@ -44,7 +44,8 @@ COMMANDS = ("render", "merge", "info")
 # where a lane costs more) so there are many.
 _TIMED_PASS_LANES = {"llvm": 1 << 16, "cuda": 1 << 20}
 _SUPPORTED_EMITTERS = {"AreaLight": "area", "PointLight": "point", "SpotLight": "spot",
-                       "ConstantBackgroundEmitter": "constant", "EnvironmentMapEmitter": "envmap"}
+                       "ConstantBackgroundEmitter": "constant", "EnvironmentMapEmitter": "envmap",
+                       "DirectionalEmitter": "directional"}
 _SUPPORTED_SENSORS = {"PerspectiveCamera": "perspective"}
 _BSDF_NAMES = {
     "SmoothDiffuse": "diffuse", "TwoSidedBRDF": "twosided", "SmoothDielectric": "dielectric",
@@ -792,7 +793,7 @@ def cmd_info(args) -> int:
         name = plugin_name(e)
         ok = e.class_name() in _SUPPORTED_EMITTERS
         lines.append("emitter:    %s%s" % (name, "" if ok else
-                                            "  [refused: supported emitters are area, point, spot, constant, envmap]"))
+                                            "  [refused: supported: area, point, spot, constant, envmap, directional]"))
         if not ok:
             problems.append("emitter plugin '%s' is not supported" % name)
 

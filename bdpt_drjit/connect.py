@@ -22,6 +22,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import mis
+from .emitters import DIRECTIONAL
 from .records import (Vertex, eval_adjoint, finite, geometric_cosines,
                       reverse_pdf, spectrum_nonzero)
 
@@ -109,6 +110,11 @@ def next_event(ctx, si, bsdf, vertex: Vertex, sample, active):
         # angle at z_{t-1} it becomes pmf * d^2 (cos_light = 1), as in SmallVCM.
         nee_pdf = dr.select(ds.delta, ds.pdf * dr.square(ds.dist),
                             scene.pdf_emitter_direction(si, ds, active & ~ds.delta))
+        if DIRECTIONAL in ctx.emitters.kinds_present:
+            # A directional light: a discrete direction picked with its pmf, at
+            # infinity (no distance), tech. rep. section 5.1.
+            is_dir = ctx.emitters.kind_of(ds.emitter, active) == DIRECTIONAL
+            nee_pdf = dr.select(is_dir, ds.pdf, nee_pdf)
         d_vcm, d_vc = vertex.d_vcm, vertex.d_vc
         if ctx.pt_only:             # rivals: the emitter hit only
             d_vcm, d_vc = mi.Float(0.0), mi.Float(0.0)

@@ -13,15 +13,18 @@ constant,  uniform on a disk of the    the emitter's own direction
 envmap     scene's bounding sphere     sampling (uniform sphere; the
            radius R facing the ray,    envmap's luminance), Mitsuba's
            1 / (pi R^2)                ``pdf_direction``
+direc-     the same disk               delta (discrete, 1)
+tional
 =========  ==========================  ================================
 
-Environment emitters start light subpaths at infinity (VCM technical report,
-section 5.1 "infinite lights"; SmallVCM's background light): y_0 on the disk only
-places the ray, its "distance" to y_1 enters no pdf, and the camera strategies
-that would see it (s = 0 on a ray that escapes) use solid-angle densities.
+Environment and directional emitters start light subpaths at infinity (VCM
+technical report, section 5.1 "infinite lights"; SmallVCM's background and
+directional lights): y_0 on the disk only places the ray, its "distance" to y_1
+enters no pdf, and the camera strategies that would see it (s = 0 on a ray that
+escapes) use solid-angle densities.  A directional light cannot be hit at all.
 Emitter selection uses Mitsuba's own pmf (``scene.sample_emitter``), so light paths
-and next-event estimation agree on it.  Directional and other emitters are refused
-with an error naming the plugin.
+and next-event estimation agree on it.  Other emitters (projector, sunsky, ...) are
+refused with an error naming the plugin.
 """
 from __future__ import annotations
 
@@ -31,9 +34,10 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-AREA, POINT, SPOT, ENV = 0, 1, 2, 3
+AREA, POINT, SPOT, ENV, DIRECTIONAL = 0, 1, 2, 3, 4
 _KINDS = {"AreaLight": AREA, "PointLight": POINT, "SpotLight": SPOT,
-          "ConstantBackgroundEmitter": ENV, "EnvironmentMapEmitter": ENV}
+          "ConstantBackgroundEmitter": ENV, "EnvironmentMapEmitter": ENV,
+          "DirectionalEmitter": DIRECTIONAL}
 _XML_NAMES = {"AreaLight": "area", "PointLight": "point", "SpotLight": "spot",
               "ConstantBackgroundEmitter": "constant", "EnvironmentMapEmitter": "envmap",
               "DirectionalEmitter": "directional", "Projector": "projector",
@@ -64,7 +68,8 @@ class EmissionSample:
     d: mi.Vector3f          # emitted direction
     emitter: mi.EmitterPtr
     delta_pos: mi.Bool
-    infinite: mi.Bool       # environment: y_0 lies at infinity
+    infinite: mi.Bool       # environment or directional: y_0 lies at infinity
+    delta_dir: mi.Bool      # directional: a single direction
     pos_pdf_a: mi.Float     # pmf * pdf_pos: density of y_0 when light paths start
     emission_pdf: mi.Float  # pos_pdf_a * pdf_dir(d)
     cos_emit: mi.Float      # |cos| at y_0 for area lights, 1 otherwise
@@ -92,12 +97,12 @@ class Emitters:
                 raise UnsupportedPluginError(
                     "bdpt: emitter plugin '%s' is not supported yet (it cannot start "
                     "light subpaths here); supported emitters: area, point, spot, "
-                    "constant, envmap" % plugin_name(e))
+                    "constant, envmap, directional" % plugin_name(e))
             kind = _KINDS[cls]
             kinds.append(kind)
             if kind == AREA:
                 area = e.get_shape().surface_area()[0]
-            elif kind == ENV:
+            elif kind in (ENV, DIRECTIONAL):
                 area = math.pi * self.env_radius ** 2     # the disk y_0 starts on
             else:
                 area = 1.0
@@ -164,6 +169,7 @@ class Emitters:
         cone = dr.rcp(2.0 * dr.pi * (1.0 - cos_cutoff))
         pdf = dr.select(kind == AREA, dr.maximum(dr.dot(n, d), 0.0) * dr.inv_pi,
                         dr.select(kind == SPOT, cone, 0.25 * dr.inv_pi))
+        pdf = dr.select(kind == DIRECTIONAL, 1.0, pdf)
         if ENV in self.kinds_present:
             is_env = active & (kind == ENV)
             it = dr.zeros(mi.Interaction3f)
@@ -227,20 +233,22 @@ class Emitters:
                       frame.to_world(local))
         is_delta = (kind == POINT) | (kind == SPOT)
         is_env = kind == ENV
-        if ENV in self.kinds_present:
+        is_dir = kind == DIRECTIONAL
+        is_inf = is_env | is_dir
+        if self.kinds_present & {ENV, DIRECTIONAL}:
             # Environment: the direction from the emitter's own sampling, then a point
             # on the disk of radius R facing it, a distance R beyond the center.
             it = dr.zeros(mi.Interaction3f)
             it.p, it.time, it.wavelengths = mi.Point3f(self.env_center), time, wavelengths
-            ds_env, _ = emitter.sample_direction(it, u_dir, active & is_env)
+            ds_env, e_dir = emitter.sample_direction(it, u_dir, active & is_inf)
             disk = mi.warp.square_to_uniform_disk_concentric(u_pos) * self.env_radius
             towards = mi.Frame3f(ds_env.d)
             p_env = it.p + ds_env.d * self.env_radius + towards.s * disk.x + towards.t * disk.y
-            d = dr.select(is_env, -ds_env.d, d)
-            ps.p = dr.select(is_env, p_env, ps.p)
-            ps.n = dr.select(is_env, d, ps.n)
-            ps.uv = dr.select(is_env, 0.0, ps.uv)
-            pos_pdf = dr.select(is_env, pmf * dr.gather(mi.Float, self.inv_area, idx, active), pos_pdf)
+            d = dr.select(is_inf, -ds_env.d, d)
+            ps.p = dr.select(is_inf, p_env, ps.p)
+            ps.n = dr.select(is_inf, d, ps.n)
+            ps.uv = dr.select(is_inf, 0.0, ps.uv)
+            pos_pdf = dr.select(is_inf, pmf * dr.gather(mi.Float, self.inv_area, idx, active), pos_pdf)
         pdf_dir = self.pdf_direction(emitter, kind, cos_cut, ps.n, d, active)
         emission_pdf = pos_pdf * pdf_dir
         cos_emit = dr.select(is_area, dr.abs(dr.dot(ps.n, d)), 1.0)
@@ -249,10 +257,13 @@ class Emitters:
         if ENV in self.kinds_present:
             le = dr.select(is_env, self.environment_radiance(emitter, d, wavelengths, time,
                                                              active & is_env), le)
+        if DIRECTIONAL in self.kinds_present:
+            le = dr.select(is_dir, e_dir, le)      # irradiance (its direction pdf is 1)
         beta = le * dr.select(emission_pdf > 0, cos_emit / emission_pdf, 0.0)
         valid = active & (emission_pdf > 0) & (dr.max(mi.unpolarized_spectrum(beta)) > 0)
         return EmissionSample(p=ps.p, n=ps.n, uv=ps.uv, d=d, emitter=emitter,
-                              delta_pos=is_delta, infinite=is_env, pos_pdf_a=pos_pdf,
+                              delta_pos=is_delta, infinite=is_inf, delta_dir=is_dir,
+                              pos_pdf_a=pos_pdf,
                               emission_pdf=emission_pdf, cos_emit=cos_emit,
                               beta=beta, valid=valid)
 
@@ -272,7 +283,15 @@ class Emitters:
         ds.d, ds.emitter, ds.time = d_escape, emitter, ref.time
         nee = self.scene.pdf_emitter_direction(ref, ds, active)
         _, emission, _, _ = self.emission_pdfs(emitter, -d_escape, -d_escape, active)
+        if DIRECTIONAL in self.kinds_present:
+            # A directional light is picked with its pmf alone (discrete direction).
+            is_dir = self.kind_of(emitter, active) == DIRECTIONAL
+            pmf = self.scene.pdf_emitter(self.index(emitter, active), active)
+            nee = dr.select(is_dir, pmf, nee)
         return nee, emission
+
+    def kind_of(self, emitter, active=True) -> mi.UInt32:
+        return dr.gather(mi.UInt32, self.kind, self.index(emitter, active), active)
 
     def nee_pdf_a(self, ref: mi.Interaction3f, p, n, uv, emitter, delta_pos, time, active=True):
         """P_nee(y | ref) in area measure at y (pmf included) for a point y on an

@@ -100,7 +100,8 @@ def light_start(h: Heuristic, emission_pdf, cos_emit, delta_position):
     """d_vc at y_0 (tech. rep. eq. 32); d_vcm waits for y_1 (see ``light_first_hit``).
 
     ``emission_pdf`` = pmf * pdf_pos_a * pdf_dir_w, the density of the emitted ray.
-    A delta-position emitter (point, spot) cannot be hit by a camera path: d_vc = 0.
+    A delta-position emitter (point, spot) or a directional light cannot be hit by a
+    camera path: d_vc = 0.
     """
     return dr.select(delta_position, 0.0, h(_div(cos_emit, emission_pdf)))
 

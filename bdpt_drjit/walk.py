@@ -19,6 +19,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import connect, mis
+from .emitters import DIRECTIONAL, ENV
 from .records import (Vertex, adjoint_correction, compact_interaction, concat_vertices,
                       eval_adjoint, gather_vertex, geometric_cosines, reverse_pdf)
 
@@ -80,7 +81,7 @@ def trace_light_subpaths(ctx, max_vertex: int | None, sparse: SparseLights) -> l
     u_cam = sampler.next_2d()
     if ctx.enabled(1, 1):
         connect.emitter_to_camera(ctx, es, u_cam)
-    d_vc = mis.light_start(ctx.h, es.emission_pdf, es.cos_emit, es.delta_pos)
+    d_vc = mis.light_start(ctx.h, es.emission_pdf, es.cos_emit, es.delta_pos | es.delta_dir)
     d_vcm = mi.Float(0.0)
     it0 = dr.zeros(mi.Interaction3f)
     it0.p, it0.n, it0.time, it0.wavelengths = es.p, es.n, ctx.time, ctx.wavelengths
@@ -102,7 +103,7 @@ def trace_light_subpaths(ctx, max_vertex: int | None, sparse: SparseLights) -> l
         if i == 1:
             nee = ctx.emitters.nee_pdf_a(si, es.p, es.n, es.uv, es.emitter, es.delta_pos,
                                          ctx.time, active & ~es.infinite)
-            if ctx.emitters.environment is not None:
+            if ctx.emitters.kinds_present & {ENV, DIRECTIONAL}:
                 # y_0 at infinity: the solid-angle NEE density, and no distance
                 # (tech. rep. section 5.1; SmallVCM skips dist^2 for infinite lights).
                 nee_w, _ = ctx.emitters.environment_pdfs(es.emitter, si, -ray.d,

@@ -49,9 +49,9 @@ with the pinhole camera.
      - Samples per pixel per pass; 0 chooses it so the vertex buffers fit
        ``memory_budget`` (2 GiB). (Default: 0)
 
-Supported: the ``perspective`` sensor; ``area``, ``point``, ``spot``, ``constant``
-and ``envmap`` emitters; every Mitsuba BSDF.  Other sensors and emitters
-(``directional``, ``orthographic``, ...) raise an error naming the plugin.
+Supported: the ``perspective`` sensor; ``area``, ``point``, ``spot``, ``constant``,
+``envmap`` and ``directional`` emitters; every Mitsuba BSDF.  Other sensors and
+emitters (``orthographic``, ``projector``, ...) raise an error naming the plugin.
 
 Example::
 

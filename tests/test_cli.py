@@ -23,9 +23,9 @@ _SENSOR = ('<sensor type="%s"><film type="hdrfilm"><integer name="width" value="
 SCENES = {
     "constant.xml": '<scene version="3.0.0"><emitter type="constant"/>%s'
                     '<shape type="sphere"/></scene>' % (_SENSOR % "perspective"),
-    "directional.xml": '<scene version="3.0.0"><emitter type="directional">'
-                       '<vector name="direction" value="0,-1,0"/></emitter>%s'
-                       '<shape type="sphere"/></scene>' % (_SENSOR % "perspective"),
+    "directionalarea.xml": '<scene version="3.0.0"><shape type="rectangle">'
+                           '<emitter type="directionalarea"/></shape>%s'
+                           '<shape type="sphere"/></scene>' % (_SENSOR % "perspective"),
     "ortho.xml": '<scene version="3.0.0">%s<shape type="sphere"><emitter type="area"/>'
                  '</shape></scene>' % (_SENSOR % "orthographic"),
     "nosensor.xml": '<scene version="3.0.0"><shape type="sphere"><emitter type="area"/>'
@@ -245,7 +245,8 @@ BAD = [
     ("missing scene", ["render", "no-such-scene.xml"], ["no-such-scene.xml", "not found"]),
     ("malformed xml", ["render", "{scenes}/malformed.xml"], ["malformed.xml", "mismatch"]),
     ("unknown plugin", ["render", "{scenes}/unknown-plugin.xml"], ["spherez"]),
-    ("directional emitter", ["render", "{scenes}/directional.xml"], ["unsupported", "directional"]),
+    ("directionalarea emitter", ["render", "{scenes}/directionalarea.xml"],
+     ["unsupported", "directionalarea"]),
     ("orthographic sensor", ["render", "{scenes}/ortho.xml"], ["unsupported", "orthographic"]),
     ("no sensor", ["render", "{scenes}/nosensor.xml"], ["no sensor"]),
     ("spp 0", ["render", CORNELL, *TINY, "--spp", "0"], ["--spp", "positive"]),
@@ -322,8 +323,8 @@ def test_info(scenes):
     assert "perspective" in out and "16x16" in out and "area" in out
     assert "twosided" in out and "diffuse" in out and "supported" in out
     assert "REFUSED" not in out
-    p = ok(run_cli("info", scenes / "directional.xml"))
-    assert "directional" in p.stdout and "REFUSED" in p.stdout
+    p = ok(run_cli("info", scenes / "directionalarea.xml"))
+    assert "directionalarea" in p.stdout and "REFUSED" in p.stdout
     p = ok(run_cli("info", scenes / "constant.xml"))
     assert "constant" in p.stdout and "REFUSED" not in p.stdout
     p = ok(run_cli("info", NO_EMITTERS))

@@ -1,13 +1,15 @@
-"""Environment emitters (``constant``, ``envmap``): light subpaths that start at
-infinity, on a disk beyond the scene's bounding sphere, with solid-angle densities in
-MIS (VCM technical report, section 5.1).
+"""Environment and directional emitters (``constant``, ``envmap``, ``directional``):
+light subpaths that start at infinity, on a disk beyond the scene's bounding sphere,
+with solid-angle densities in MIS (VCM technical report, section 5.1).
 
 1. Analytic: a convex diffuse sphere of albedo r under a constant environment L
    reflects exactly r L everywhere (it sees nothing but the environment), for every
    heuristic, with and without the light image, for the path-tracing and
    light-tracing subsets, and for each strategy of those length-2 paths alone
    (s = 0 on an escaping ray, next-event estimation, and light paths from infinity).
-2. Against Mitsuba's ``path``: an environment map (a bright lobe over a dim sky) lights
+2. Analytic: a diffuse floor of albedo r under a directional light of irradiance E
+   has radiance r E / pi, for each heuristic and strategy set.
+3. Against Mitsuba's ``path``: an environment map (a bright lobe over a dim sky) lights
    a floor, a diffuse sphere, a rough metal sphere and a glass sphere; statistical
    agreement over independent seeds, with ``hide_emitters`` on and off.
 """
@@ -92,3 +94,24 @@ def test_envmap_scene_matches_mitsuba_path(envmap_scene, hide):
            for s in seeds]
     assert all(np.isfinite(im).all() for im in ours)
     assert_statistically_equal(ours, ref, what="envmap, hide_emitters=%s" % hide)
+
+
+@pytest.fixture(scope="module")
+def floor_under_sun():
+    return mi.load_dict({
+        "type": "scene",
+        "sun": {"type": "directional", "direction": [0, -1, 0],
+                "irradiance": {"type": "rgb", "value": 2.0}},
+        "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90) @ T().scale(5),
+                  "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": ALBEDO}}},
+        "sensor": _sensor(16, [0, 3, 3], [0, 0, 0], 30)})
+
+
+@pytest.mark.parametrize("settings", [
+    dict(), dict(mis="balance"), dict(mis="uniform"), dict(light_image=False),
+    dict(strategies="lt"), dict(technique=(1, 2)), dict(technique=(2, 1))])
+def test_floor_under_directional_light(floor_under_sun, settings):
+    per_seed = np.array([bdpt_drjit.render(floor_under_sun, spp=64, seed=s, max_depth=3,
+                                           **settings).image[..., :3].mean() for s in range(6)])
+    mean, se = per_seed.mean(), per_seed.std(ddof=1) / np.sqrt(len(per_seed))
+    assert abs(mean - ALBEDO * 2.0 / np.pi) <= 4.5 * se + 1e-4, (mean, se)
