@@ -28,7 +28,8 @@ from . import camera as camera_stage
 from .emitters import Emitters
 from .film import FilmAccumulator
 from .mis import Heuristic
-from .walk import SparseLights, trace_camera_subpaths, trace_light_subpaths
+from .compact import SparseLights
+from .walk import trace_camera_subpaths, trace_light_subpaths
 
 DEFAULT_MEMORY_BUDGET = 2 * 1024 ** 3
 # Bytes per lane: stored light vertices (compact interaction, throughput, MIS

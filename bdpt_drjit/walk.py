@@ -7,21 +7,21 @@ camera step also connects its vertex z_j to the stored light vertices (s, t >= 2
 One ``dr.eval`` per depth; depth-dependent choices are Python branches that give a
 handful of kernel variants, never a kernel per depth.
 
-Sparse work is compacted (``COMPACT_BELOW``): once few camera lanes live, the camera
+Sparse work is compacted (compact.py): once few camera lanes live, the camera
 wavefront shrinks to them; light vertices alive in few lanes are connected as a list
 of items.  Neither changes a sample: the same seed gives the same image.
 """
 from __future__ import annotations
 
-from dataclasses import replace
-
 import drjit as dr
 import mitsuba as mi
 
 from . import connect, mis
+from .compact import Draws, SparseLights, connect_sparse, send_sparse_home
+from . import compact
 from .emitters import DIRECTIONAL, ENV
-from .records import (Vertex, adjoint_correction, compact_interaction, concat_vertices,
-                      eval_adjoint, gather_vertex, geometric_cosines, reverse_pdf)
+from .records import (Vertex, adjoint_correction, compact_interaction, eval_adjoint,
+                      gather_vertex, geometric_cosines, reverse_pdf)
 
 RADIANCE, IMPORTANCE = connect.RADIANCE, connect.IMPORTANCE
 
@@ -141,139 +141,18 @@ def trace_light_subpaths(ctx, max_vertex: int | None, sparse: SparseLights) -> l
     return vertices
 
 
-# Compact the camera wavefront to its live lanes once fewer than this fraction of
-# its lanes are alive.  Deep vertices are sparse (Russian roulette), yet a masked
-# lane still runs the arithmetic of every connection: with max_depth = -1 the
-# Cornell box spent half its time on camera depths where ~1% of lanes lived.
-COMPACT_BELOW = 0.25
-_COMPACT_MIN_LANES = 4096
-
-
-class _Draws:
-    """The camera sampler's numbers for the lanes of the wavefront.  Once the
-    wavefront is compacted, the numbers of a depth are drawn for all lanes in one
-    kernel (``prefetch``) and gathered at the live ones, so a surviving lane sees the
-    numbers it would see uncompacted (a lane's sequence advances whenever it is
-    alive, in both cases)."""
-
-    def __init__(self, sampler):
-        self.sampler, self.lane, self.queue = sampler, None, []
-
-    def prefetch(self, dims: list[int]) -> None:
-        self.queue = [self.sampler.next_1d() if d == 1 else self.sampler.next_2d() for d in dims]
-        self.sampler.schedule_state()
-        dr.eval(self.queue)
-
-    def next_1d(self, active=True):
-        if self.lane is None:
-            return self.sampler.next_1d(active)
-        return dr.gather(mi.Float, self.queue.pop(0), self.lane)
-
-    def next_2d(self, active=True):
-        if self.lane is None:
-            return self.sampler.next_2d(active)
-        return dr.gather(mi.Point2f, self.queue.pop(0), self.lane)
-
-
-_NO_ITEM = 0xFFFFFFFF
-
-
-class SparseLights:
-    """Light vertices alive in few lanes (fewer than ``COMPACT_BELOW``).  The light
-    walk hands each such vertex over as soon as it is stored (``add``): its live
-    lanes become (home lane, y_i) items and its full-width record is dropped, so
-    memory stays bounded with max_depth = -1, where subpaths reach ~40 vertices.
-    Dense camera depths connect to all items in one kernel (``_connect_sparse``)
-    instead of running masked full-width pairs; a compacted camera wavefront finds
-    its lanes' items through ``maps[i]`` (home lane -> item, 4 bytes per lane)."""
-
-    def __init__(self, ctx, width: int):
-        self.width = width
-        self.on = (COMPACT_BELOW > 0 and width >= _COMPACT_MIN_LANES
-                   and not ctx.film.strategy_images)    # (those need a block per (s, t))
-        self.indices: set[int] = set()   # i of the sparse light vertices
-        self.maps: dict[int, mi.UInt32] = {}
-        self.lane = self.s = self.light = self.radiance = self.rays = None
-        self.groups: list[tuple[int, int]] = []          # (offset, count) per vertex
-        self._parts, self._lanes, self._s, self._count = [], [], [], 0
-
-    def add(self, i: int, vertex: Vertex) -> bool:
-        """Take y_i (an evaluated record) if it is sparse; says whether it did."""
-        if not self.on:
-            return False
-        n = dr.count(vertex.connectible)[0]
-        if n >= COMPACT_BELOW * self.width:
-            return False
-        self.indices.add(i)
-        if n > 0:
-            idx = dr.compress(vertex.connectible)
-            part = gather_vertex(vertex, idx)
-            item = dr.arange(mi.UInt32, n) + self._count
-            self.maps[i] = dr.full(mi.UInt32, _NO_ITEM, self.width)
-            dr.scatter(self.maps[i], item, idx)
-            dr.eval(part, self.maps[i])
-            self._parts.append(part)
-            self._lanes.append(idx)
-            self._s.append(dr.full(mi.UInt32, i + 1, n))
-            self.groups.append((self._count, n))
-            self._count += n
-        return True
-
-    def finish(self) -> None:
-        """One list of all items, after the light walk."""
-        if self._parts:
-            self.light = concat_vertices(self._parts)
-            self.lane, self.s = dr.concat(self._lanes), dr.concat(self._s)
-            self.radiance = dr.zeros(mi.Spectrum, self._count)
-            self.rays = dr.zeros(mi.UInt32, self._count)
-            dr.eval(self.light, self.lane, self.s, self.radiance, self.rays)
-        self._parts, self._lanes, self._s = [], [], []
-
-    def gather(self, i: int, lane: mi.UInt32) -> Vertex:
-        """y_i at the home lanes ``lane`` (not connectible where it has no item)."""
-        item = dr.gather(mi.UInt32, self.maps[i], lane)
-        return gather_vertex(self.light, item, item != _NO_ITEM)
-
-
-def _connect_sparse(ctx, sparse: SparseLights, cam_record: Vertex, t: int) -> None:
-    """s, t >= 2 between camera vertex z_{t-1} (``cam_record``, full width) and the
-    sparse light vertices' items."""
-    enabled = dr.zeros(mi.Bool, dr.width(sparse.lane))
-    for i in sparse.indices:
-        if ctx.enabled(i + 1, t):
-            enabled |= sparse.s == i + 1
-    light = replace(sparse.light, connectible=sparse.light.connectible & enabled)
-    cam = gather_vertex(cam_record, sparse.lane)
-    rays, ctx.rays = ctx.rays, sparse.rays
-    sparse.radiance += connect.connect_vertices(ctx, light, cam, cam.si.bsdf())
-    sparse.rays, ctx.rays = ctx.rays, rays
-    dr.eval(sparse.radiance, sparse.rays)
-
-
-def _send_sparse_home(sparse: SparseLights, radiance, rays) -> None:
-    """Add the items' radiance to their home lanes, one light vertex at a time: a
-    lane appears once per vertex, so no two additions race (the image stays
-    deterministic)."""
-    for offset, n in sparse.groups:
-        item = dr.arange(mi.UInt32, n) + offset
-        dr.scatter_reduce(dr.ReduceOp.Add, radiance, dr.gather(mi.Spectrum, sparse.radiance, item),
-                          dr.gather(mi.UInt32, sparse.lane, item))
-        dr.eval(radiance)
-    dr.scatter_reduce(dr.ReduceOp.Add, rays, sparse.rays, sparse.lane)
-
-
 def trace_camera_subpaths(ctx, cam, max_vertex: int | None, light_vertices: list[Vertex],
                           sparse: SparseLights):
     """Camera vertices z_1..z_n with the s = 0 and s = 1 strategies, and each z_j
     connected to the stored light vertices (s, t >= 2) while its interaction is live;
     returns the per-lane radiance of all these strategies.
 
-    When few lanes survive, the wavefront is compacted (``COMPACT_BELOW``): its state
+    When few lanes survive, the wavefront is compacted (``compact.COMPACT_BELOW``): its state
     is gathered at the live lanes, ``lane`` maps them home (pbrt-v4's wavefront
     work items carry their pixel index the same way), light vertices are gathered
     at ``lane``, and radiance and ray counts are scattered back."""
     sampler, scene, sensor = ctx.camera_sampler, ctx.scene, ctx.sensor
-    draws = _Draws(sampler)
+    draws = Draws(sampler)
     ray = mi.Ray3f(cam.ray)
     beta, active = mi.Spectrum(cam.weight), mi.Bool(True)
     alpha, eta = dr.ones(mi.Spectrum), mi.Float(1.0)
@@ -297,7 +176,7 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None, light_vertices: list
             alive = dr.count(active)[0]
             if alive == 0:
                 break
-            if alive < COMPACT_BELOW * width and width >= _COMPACT_MIN_LANES:
+            if alive < compact.COMPACT_BELOW * width and width >= compact.MIN_LANES:
                 if lane is None:
                     full_radiance, full_rays = radiance, ctx.rays
                 else:
@@ -389,12 +268,12 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None, light_vertices: list
         dr.eval(radiance, ray, d_vcm, d_vc, beta, alpha, eta, active, prev, lw, ctx.rays,
                 *([] if cam_record is None else [cam_record]))
         if cam_record is not None:
-            _connect_sparse(ctx, sparse, cam_record, j + 1)
+            connect_sparse(ctx, sparse, cam_record, j + 1)
         j += 1
     if lane is not None:
         send_home()
         radiance, ctx.rays = full_radiance, full_rays
     if sparse.lane is not None:
-        _send_sparse_home(sparse, radiance, ctx.rays)
+        send_sparse_home(sparse, radiance, ctx.rays)
     dr.eval(radiance, ctx.rays)
     return radiance
