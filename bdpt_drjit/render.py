@@ -25,10 +25,10 @@ import mitsuba as mi
 import numpy as np
 
 from . import camera as camera_stage
+from .compact import SparseLights
 from .emitters import Emitters
 from .film import FilmAccumulator
 from .mis import Heuristic
-from .compact import SparseLights
 from .walk import trace_camera_subpaths, trace_light_subpaths
 
 DEFAULT_MEMORY_BUDGET = 2 * 1024 ** 3

@@ -16,9 +16,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from . import connect, mis
+from . import compact, connect, mis
 from .compact import Draws, SparseLights, connect_sparse, send_sparse_home
-from . import compact
 from .emitters import DIRECTIONAL, ENV
 from .records import (Vertex, adjoint_correction, compact_interaction, eval_adjoint,
                       gather_vertex, geometric_cosines, reverse_pdf)
@@ -235,7 +234,7 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None, light_vertices: list
         sparse_now = lane is None and sparse.lane is not None and any(
             ctx.enabled(i + 1, j + 1) for i in sparse.indices)
         cam_record = None
-        if sparse_now:                # for _connect_sparse, after this kernel
+        if sparse_now:                # for connect_sparse, after this kernel
             cam_record = Vertex(si=compact_interaction(si), beta=beta, d_vcm=d_vcm, d_vc=d_vc,
                                 connectible=connectible, lw=lw)
         for i in range(1, len(light_vertices) + 1):

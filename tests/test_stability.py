@@ -235,6 +235,7 @@ CASES = {
     "caustic-tiny-area": Case(_stress16("caustic-tiny-area.xml"), 16, {"max_depth": 8},
                               _ptracer(64, max_depth=8)),
     "light-slit": Case(_stress16("light-slit.xml"), 16, {"max_depth": 8}, _ptracer(64, max_depth=8)),
+    "sun-caustic": Case(_stress16("sun-caustic.xml"), 16, {"max_depth": 8}, _ptracer(64, max_depth=8)),
     "light-facing-wall": Case(_stress16("light-facing-wall.xml"), 16, {"max_depth": 8},
                               _ptracer(64, max_depth=8)),
     # -- everyone fails: a point-light caustic seen in a mirror (sensor 0: Mitsuba's path
@@ -287,6 +288,7 @@ FIREFLY = {                      # bound       measured (worst of 16 renders)
     "caustic-point": 3.0,         #             1.47
     "caustic-tiny-area": 2.5,     #             1.22
     "light-slit": 3.8,            #             1.89
+    "sun-caustic": 7.0,           #             3.39
     "light-facing-wall": 2.4,     #             1.19
     "sds-mirror": 2.2,            #             1.06
     "sds-direct": 3.6,            #             1.78
