@@ -4,8 +4,8 @@ Deep vertices are sparse (Russian roulette), yet a masked lane still runs the
 arithmetic of every connection.  Two remedies, neither of which changes a sample
 (tests/test_options.py::test_compaction_changes_no_sample):
 
-* the camera wavefront is compacted to its live lanes (walk.trace_camera_subpaths),
-  drawing the sampler's numbers through ``Draws``;
+* the camera and light wavefronts are compacted to their live lanes (walk.py),
+  drawing the samplers' numbers through ``Draws``;
 * light vertices alive in few lanes become a list of (home lane, vertex) items
   (``SparseLights``), connected to the dense camera depths in one kernel each.
 """
@@ -75,23 +75,26 @@ class SparseLights:
         self.groups: list[tuple[int, int]] = []          # (offset, count) per vertex
         self._parts, self._lanes, self._s, self._count = [], [], [], 0
 
-    def add(self, i: int, vertex: Vertex) -> bool:
-        """Take y_i (an evaluated record) if it is sparse; says whether it did."""
+    def add(self, i: int, vertex: Vertex, lane: mi.UInt32 | None = None) -> bool:
+        """Take y_i (an evaluated record) if it is sparse; says whether it did.  A
+        record of a compacted light wavefront (``lane``: its home lanes) is always
+        taken."""
         if not self.on:
             return False
         n = dr.count(vertex.connectible)[0]
-        if n >= COMPACT_BELOW * self.width:
+        if lane is None and n >= COMPACT_BELOW * self.width:
             return False
         self.indices.add(i)
         if n > 0:
             idx = dr.compress(vertex.connectible)
             part = gather_vertex(vertex, idx)
+            home = idx if lane is None else dr.gather(mi.UInt32, lane, idx)
             item = dr.arange(mi.UInt32, n) + self._count
             self.maps[i] = dr.full(mi.UInt32, _NO_ITEM, self.width)
-            dr.scatter(self.maps[i], item, idx)
-            dr.eval(part, self.maps[i])
+            dr.scatter(self.maps[i], item, home)
+            dr.eval(part, home, self.maps[i])
             self._parts.append(part)
-            self._lanes.append(idx)
+            self._lanes.append(home)
             self._s.append(dr.full(mi.UInt32, i + 1, n))
             self.groups.append((self._count, n))
             self._count += n

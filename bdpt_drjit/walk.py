@@ -90,9 +90,34 @@ def trace_light_subpaths(ctx, max_vertex: int | None, sparse: SparseLights) -> l
     sampler.schedule_state()
     dr.eval(es, ray, d_vc, ctx.rays)
 
+    # Compaction (as in trace_camera_subpaths) once few light lanes live: only while
+    # sparse vertices can be taken as items (their records are then compact).
+    draws = Draws(sampler)
+    width, lane = dr.width(active), None
+    full_rays, camera_weight = ctx.rays, ctx.camera_weight
     vertices: list[Vertex] = []
     i = 1
-    while (max_vertex is None or i <= max_vertex) and dr.any(active):
+    while max_vertex is None or i <= max_vertex:
+        alive = dr.count(active)[0]
+        if alive == 0:
+            break
+        if (i > 1 and sparse.on and alive < compact.COMPACT_BELOW * width
+                and width >= compact.MIN_LANES):
+            if lane is not None:
+                dr.scatter_reduce(dr.ReduceOp.Add, full_rays, ctx.rays, lane)
+            idx = dr.compress(active)
+            ray, beta, alpha, eta, d_vcm, d_vc, prev_p = (
+                dr.gather(type(x), x, idx) for x in (ray, beta, alpha, eta, d_vcm, d_vc, prev_p))
+            lane = idx if lane is None else dr.gather(mi.UInt32, lane, idx)
+            width = dr.width(idx)
+            active = dr.full(mi.Bool, True, width)
+            ctx.rays = dr.zeros(mi.UInt32, width)
+            ctx.camera_weight = dr.gather(type(camera_weight), camera_weight, lane)
+            draws.lane = lane
+        if lane is not None:
+            scatters = max_vertex is None or i < max_vertex
+            draws.prefetch([2] + ([1, 2] if scatters else [])
+                           + ([1] if scatters and i >= ctx.settings.rr_depth else []))
         ctx.rays += dr.select(active, 1, 0)
         pi = scene.ray_intersect_preliminary(ray, False, active)
         si = pi.compute_surface_interaction(ray, mi.RayFlags.All, active)
@@ -115,16 +140,16 @@ def trace_light_subpaths(ctx, max_vertex: int | None, sparse: SparseLights) -> l
         bsdf = si.bsdf()
         connectible = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         vertex = Vertex(si=si, beta=beta, d_vcm=d_vcm, d_vc=d_vc, connectible=connectible)
-        u_cam = sampler.next_2d()
+        u_cam = draws.next_2d()
         if ctx.enabled(i + 1, 1):
             connect.light_vertex_to_camera(ctx, si, bsdf, vertex, i + 1, u_cam, connectible)
         if max_vertex is None or i < max_vertex:
             prev_p = si.p
             ray, d_vcm, d_vc, beta, alpha, eta, active, _ = _scatter(
-                ctx, sampler, si, bsdf, IMPORTANCE, RADIANCE, d_vcm, d_vc, beta, alpha,
+                ctx, draws, si, bsdf, IMPORTANCE, RADIANCE, d_vcm, d_vc, beta, alpha,
                 eta, active, i, importance=True)
         else:
-            active = mi.Bool(False)
+            active = dr.zeros(mi.Bool, width)
         sampler.schedule_state()
         stored = None
         if ctx.connects(i):
@@ -132,10 +157,14 @@ def trace_light_subpaths(ctx, max_vertex: int | None, sparse: SparseLights) -> l
                             d_vc=vertex.d_vc, connectible=connectible)
         dr.eval(ray, d_vcm, d_vc, beta, alpha, eta, active, prev_p, ctx.rays,
                 *([] if stored is None else [stored]))
-        if stored is not None and sparse.add(i, stored):
+        if stored is not None and sparse.add(i, stored, lane):
             stored = None
         vertices.append(stored)
         i += 1
+    if lane is not None:
+        dr.scatter_reduce(dr.ReduceOp.Add, full_rays, ctx.rays, lane)
+        dr.eval(full_rays)
+        ctx.rays, ctx.camera_weight = full_rays, camera_weight
     sparse.finish()
     return vertices
 
