@@ -110,34 +110,22 @@ def _fmt_rate(x: float) -> str:
     return "%.3g " % x
 
 
-def _positive_int(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError("expected a positive integer, got %r" % text) from None
-    if v <= 0:
-        raise argparse.ArgumentTypeError("must be a positive integer, got %d" % v)
-    return v
+def _int_arg(lowest: int, expected: str, bound: str):
+    """An argparse type: an integer >= ``lowest``; the two messages name the rule."""
+    def parse(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError("expected %s, got %r" % (expected, text)) from None
+        if v < lowest:
+            raise argparse.ArgumentTypeError("must be %s, got %d" % (bound, v))
+        return v
+    return parse
 
 
-def _nonneg_int(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError("expected an integer >= 0, got %r" % text) from None
-    if v < 0:
-        raise argparse.ArgumentTypeError("must be >= 0, got %d" % v)
-    return v
-
-
-def _max_depth(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError("expected an integer, got %r" % text) from None
-    if v < -1:
-        raise argparse.ArgumentTypeError("must be -1 (unbounded) or >= 0, got %d" % v)
-    return v
+_positive_int = _int_arg(1, "a positive integer", "a positive integer")
+_nonneg_int = _int_arg(0, "an integer >= 0", ">= 0")
+_max_depth = _int_arg(-1, "an integer", "-1 (unbounded) or >= 0")
 
 
 def _positive_float(text):

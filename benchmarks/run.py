@@ -166,13 +166,21 @@ def get_reference(spec, scene, w, h, factor, cfg: Config, refs_dir: Path, progre
 
 
 # -- error against time ------------------------------------------------------------------------------
-def error_for_scene(spec, cfg: Config, methods, refs_dir: Path, progress) -> dict | None:
+def _load_or_skip(spec, res, what: str, progress):
+    """(scene, w, h, factor), or None with a message where the scene is unavailable."""
     ok, why = spec.available()
     if not ok:
-        progress("skip scene %s: %s" % (spec.name, why))
+        progress("skip %s %s: %s" % (what, spec.name, why))
         return None
-    w, h, factor = spec.resolution(cfg.res)
-    scene = spec.load(w, h)
+    w, h, factor = spec.resolution(res)
+    return spec.load(w, h), w, h, factor
+
+
+def error_for_scene(spec, cfg: Config, methods, refs_dir: Path, progress) -> dict | None:
+    loaded = _load_or_skip(spec, cfg.res, "scene", progress)
+    if loaded is None:
+        return None
+    scene, w, h, factor = loaded
     ref, ref_meta = get_reference(spec, scene, w, h, factor, cfg, refs_dir, progress)
     if ref.shape[:2] != (h, w):
         raise RuntimeError("%s: reference is %s, render is %dx%d" % (spec.name, ref.shape, w, h))
@@ -439,12 +447,10 @@ def rss_section(cfg: Config, progress) -> list:
 
 # -- strategy pyramid ---------------------------------------------------------------------------------
 def pyramid(spec, cfg: Config, plt, path: Path, progress) -> dict | None:
-    ok, why = spec.available()
-    if not ok:
-        progress("skip pyramid %s: %s" % (spec.name, why))
+    loaded = _load_or_skip(spec, cfg.pyramid_res, "pyramid", progress)
+    if loaded is None:
         return None
-    w, h, _ = spec.resolution(cfg.pyramid_res)
-    scene = spec.load(w, h)
+    scene, w, h, _ = loaded
     progress("  pyramid %s: %dx%d %d spp, per-strategy images ..." % (spec.name, w, h, cfg.pyramid_spp))
     out = C.render(C.BDPT_POWER, scene, cfg.pyramid_spp, 4242, spec.max_depth, strategy_images=True)
     img, strat = out.image, out.strategies
