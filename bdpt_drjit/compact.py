@@ -63,17 +63,19 @@ class SparseLights:
     memory stays bounded with max_depth = -1, where subpaths reach ~40 vertices.
     Dense camera depths connect to all items in one kernel (``connect_sparse``)
     instead of running masked full-width pairs; a compacted camera wavefront finds
-    its lanes' items through ``maps[i]`` (home lane -> item, 4 bytes per lane)."""
+    its lanes' items through ``map`` (home lane -> item, 4 bytes per lane and sparse
+    vertex), in a symbolic loop over the sparse vertices (``connect_compacted``)."""
 
     def __init__(self, ctx, width: int):
         self.width = width
         self.on = (COMPACT_BELOW > 0 and width >= MIN_LANES
                    and not ctx.film.strategy_images)    # (those need a block per (s, t))
         self.indices: set[int] = set()   # i of the sparse light vertices
-        self.maps: dict[int, mi.UInt32] = {}
         self.lane = self.s = self.light = self.radiance = self.rays = None
+        self.map = self.map_s = None     # K maps home lane -> item, and s = i + 1 of each
         self.groups: list[tuple[int, int]] = []          # (offset, count) per vertex
         self._parts, self._lanes, self._s, self._count = [], [], [], 0
+        self._maps, self._map_s = [], []
 
     def add(self, i: int, vertex: Vertex, lane: mi.UInt32 | None = None) -> bool:
         """Take y_i (an evaluated record) if it is sparse; says whether it did.  A
@@ -90,9 +92,11 @@ class SparseLights:
             part = gather_vertex(vertex, idx)
             home = idx if lane is None else dr.gather(mi.UInt32, lane, idx)
             item = dr.arange(mi.UInt32, n) + self._count
-            self.maps[i] = dr.full(mi.UInt32, _NO_ITEM, self.width)
-            dr.scatter(self.maps[i], item, home)
-            dr.eval(part, home, self.maps[i])
+            m = dr.full(mi.UInt32, _NO_ITEM, self.width)
+            dr.scatter(m, item, home)
+            dr.eval(part, home, m)
+            self._maps.append(m)
+            self._map_s.append(i + 1)
             self._parts.append(part)
             self._lanes.append(home)
             self._s.append(dr.full(mi.UInt32, i + 1, n))
@@ -107,28 +111,57 @@ class SparseLights:
             self.lane, self.s = dr.concat(self._lanes), dr.concat(self._s)
             self.radiance = dr.zeros(mi.Spectrum, self._count)
             self.rays = dr.zeros(mi.UInt32, self._count)
-            dr.eval(self.light, self.lane, self.s, self.radiance, self.rays)
-        self._parts, self._lanes, self._s = [], [], []
+            self.map = dr.concat(self._maps) if len(self._maps) > 1 else self._maps[0]
+            self.map_s = mi.UInt32(self._map_s)
+            dr.eval(self.light, self.lane, self.s, self.radiance, self.rays, self.map, self.map_s)
+        self._parts, self._lanes, self._s, self._maps = [], [], [], []
 
-    def gather(self, i: int, lane: mi.UInt32) -> Vertex:
-        """y_i at the home lanes ``lane`` (not connectible where it has no item)."""
-        item = dr.gather(mi.UInt32, self.maps[i], lane)
-        return gather_vertex(self.light, item, item != _NO_ITEM)
+    def enabled(self, ctx, t: int) -> mi.Bool:
+        """Per s = 0 .. max: is the strategy (s, t) enabled?  A table to gather from,
+        so that kernels do not change with the set of sparse vertices."""
+        top = max(self.indices, default=0) + 1          # the largest s = i + 1
+        return mi.Bool([ctx.enabled(s, t) for s in range(top + 1)])
 
 
 def connect_sparse(ctx, sparse: SparseLights, cam_record: Vertex, t: int) -> None:
     """s, t >= 2 between camera vertex z_{t-1} (``cam_record``, full width) and the
     sparse light vertices' items."""
-    enabled = dr.zeros(mi.Bool, dr.width(sparse.lane))
-    for i in sparse.indices:
-        if ctx.enabled(i + 1, t):
-            enabled |= sparse.s == i + 1
+    enabled = dr.gather(mi.Bool, sparse.enabled(ctx, t), sparse.s)
     light = replace(sparse.light, connectible=sparse.light.connectible & enabled)
     cam = gather_vertex(cam_record, sparse.lane)
     rays, ctx.rays = ctx.rays, sparse.rays
     sparse.radiance += connect.connect_vertices(ctx, light, cam, cam.si.bsdf())
     sparse.rays, ctx.rays = ctx.rays, rays
     dr.eval(sparse.radiance, sparse.rays)
+
+
+def connect_compacted(ctx, sparse: SparseLights, cam: Vertex, bsdf, lane: mi.UInt32, t: int):
+    """s, t >= 2 between the camera vertices z_{t-1} of a compacted wavefront (home
+    lanes ``lane``) and their lanes' sparse light vertices.  A symbolic loop over the
+    K sparse vertices: one connection in the kernel, however deep the light subpaths
+    went (with max_depth = -1, K varies from render to render, and an unrolled loop
+    gave kernels of ~8000 operations whose code generation alone took ~0.5 s per
+    render).  Returns the radiance per lane."""
+    if sparse.map is None:
+        return dr.zeros(mi.Spectrum, dr.width(lane))
+    enabled = sparse.enabled(ctx, t)
+    count = dr.opaque(mi.UInt32, dr.width(sparse.map_s))
+    width = dr.opaque(mi.UInt32, sparse.width)
+
+    def body(k, radiance, rays):
+        item = dr.gather(mi.UInt32, sparse.map, k * width + lane)
+        s = dr.gather(mi.UInt32, sparse.map_s, k)
+        ok = (item != _NO_ITEM) & dr.gather(mi.Bool, enabled, s)
+        outer, ctx.rays = ctx.rays, rays
+        radiance += connect.connect_vertices(ctx, gather_vertex(sparse.light, item, ok), cam, bsdf)
+        rays, ctx.rays = ctx.rays, outer
+        return k + 1, radiance, rays
+
+    _, radiance, ctx.rays = dr.while_loop(
+        (mi.UInt32(0), dr.zeros(mi.Spectrum, dr.width(lane)), mi.UInt32(ctx.rays)),
+        lambda k, radiance, rays: (k < count) & cam.connectible, body,
+        labels=("k", "radiance", "rays"), label="connect_compacted")
+    return radiance
 
 
 def send_sparse_home(sparse: SparseLights, radiance, rays) -> None:

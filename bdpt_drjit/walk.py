@@ -275,14 +275,14 @@ def trace_camera_subpaths(ctx, cam, max_vertex: int | None, light_vertices: list
                     continue
             elif lv is not None:
                 lv = gather_vertex(lv, lane)
-            elif i in sparse.maps:
-                lv = sparse.gather(i, lane)
-            else:
+            else:                    # sparse: connect_compacted below
                 continue
             c = connect.connect_vertices(ctx, lv, vertex, bsdf)
             radiance += c
             ctx.film.put_strategy(ctx.film.strategy_block(i + 1, j + 1), pos,
                                   ray.wavelengths, c, True)
+        if lane is not None:
+            radiance += compact.connect_compacted(ctx, sparse, vertex, bsdf, lane, j + 1)
         if max_vertex is None or j < max_vertex:
             prev = _interaction(si)
             ray, d_vcm, d_vc, beta, alpha, eta, active, delta = _scatter(
