@@ -73,6 +73,7 @@ class SparseLights:
         self.indices: set[int] = set()   # i of the sparse light vertices
         self.lane = self.s = self.light = self.radiance = self.rays = None
         self.map = self.map_s = None     # K maps home lane -> item, and s = i + 1 of each
+        self.map_end = None              # per home lane: 1 + the last k with an item
         self.groups: list[tuple[int, int]] = []          # (offset, count) per vertex
         self._parts, self._lanes, self._s, self._count = [], [], [], 0
         self._maps, self._map_s = [], []
@@ -94,7 +95,10 @@ class SparseLights:
             item = dr.arange(mi.UInt32, n) + self._count
             m = dr.full(mi.UInt32, _NO_ITEM, self.width)
             dr.scatter(m, item, home)
-            dr.eval(part, home, m)
+            if self.map_end is None:
+                self.map_end = dr.zeros(mi.UInt32, self.width)
+            dr.scatter(self.map_end, dr.opaque(mi.UInt32, len(self._maps) + 1), home)
+            dr.eval(part, home, m, self.map_end)
             self._maps.append(m)
             self._map_s.append(i + 1)
             self._parts.append(part)
@@ -145,7 +149,9 @@ def connect_compacted(ctx, sparse: SparseLights, cam: Vertex, bsdf, lane: mi.UIn
     if sparse.map is None:
         return dr.zeros(mi.Spectrum, dr.width(lane))
     enabled = sparse.enabled(ctx, t)
-    count = dr.opaque(mi.UInt32, dr.width(sparse.map_s))
+    # Most light subpaths end a few vertices after compaction: each lane loops only
+    # over the sparse vertices up to its last item.
+    count = dr.gather(mi.UInt32, sparse.map_end, lane, cam.connectible)
     width = dr.opaque(mi.UInt32, sparse.width)
 
     def body(k, radiance, rays):
@@ -159,7 +165,7 @@ def connect_compacted(ctx, sparse: SparseLights, cam: Vertex, bsdf, lane: mi.UIn
 
     _, radiance, ctx.rays = dr.while_loop(
         (mi.UInt32(0), dr.zeros(mi.Spectrum, dr.width(lane)), mi.UInt32(ctx.rays)),
-        lambda k, radiance, rays: (k < count) & cam.connectible, body,
+        lambda k, radiance, rays: k < count, body,
         labels=("k", "radiance", "rays"), label="connect_compacted")
     return radiance
 
