@@ -21,20 +21,7 @@ import argparse
 from . import common as C
 from .throughput import DEFAULT_SCENE, load_scene
 
-import drjit as dr
-import mitsuba as mi
-
-from bdpt_drjit.render import Renderer
-
-CASES = {"all": {}, "pt": {"strategies": "pt"}, "lt": {"strategies": "lt"},
-         "no light image": {"light_image": False}}
-
-
-def kernel_seconds(run) -> float:
-    dr.kernel_history()
-    run()
-    hist = dr.kernel_history()
-    return sum(k["execution_time"] for k in hist if k["type"] == dr.KernelType.JIT) / 1000
+CASES = {"all": C.BDPT_POWER, "pt": C.BDPT_PT, "lt": C.BDPT_LT, "no light image": C.BDPT_NO_LT}
 
 
 def main(argv=None) -> None:
@@ -46,30 +33,16 @@ def main(argv=None) -> None:
     ap.add_argument("--scene", default=str(DEFAULT_SCENE))
     args = ap.parse_args(argv)
     scene = load_scene(args.scene, args.res, args.res, args.max_depth)
-    samples = args.spp * args.res * args.res
 
-    def bdpt(settings, seed):
-        r = Renderer(scene, spp=args.spp, seed=seed, max_depth=args.max_depth, **settings)
-        while not r.done:
-            r.run_pass()
-        img = r.tensor()
-        dr.eval(img)
-        dr.sync_thread()
-        return r.rays / samples
+    def measure(method):
+        """Median kernel execution time over warm renders, and rays per sample."""
+        C.render(method, scene, args.spp, 0, args.max_depth)          # compiles
+        runs = [C.render(method, scene, args.spp, s + 1, args.max_depth)
+                for s in range(args.repeats)]
+        return C.median([r.timing.execution for r in runs]), runs[0].rays_per_sample
 
-    def path(seed):
-        integrator = mi.load_dict({"type": "path", "max_depth": args.max_depth})
-        img = mi.render(scene, integrator=integrator, spp=args.spp, seed=seed)
-        dr.eval(img)
-        dr.sync_thread()
-
-    rows = {}
-    for name, settings in CASES.items():
-        rays = bdpt(settings, 0)                               # warm-up (compiles)
-        times = [kernel_seconds(lambda s=s: bdpt(settings, s + 1)) for s in range(args.repeats)]
-        rows[name] = (C.median(times), rays)
-    path(0)
-    path_time = C.median([kernel_seconds(lambda s=s: path(s + 1)) for s in range(args.repeats)])
+    rows = {name: measure(m) for name, m in CASES.items()}
+    path_time, _ = measure(C.PATH)
 
     C.log("%s, %dx%d, %d spp, max_depth %d: kernel execution time (median of %d)"
           % (args.scene, args.res, args.res, args.spp, args.max_depth, args.repeats))
