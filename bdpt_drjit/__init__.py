@@ -26,8 +26,8 @@ if mi.variant() is None:
 
 from .emitters import UnsupportedPluginError  # noqa: E402
 from .exr import read_exr, write_exr  # noqa: E402
-from .mis import HEURISTICS  # noqa: E402
-from .render import Renderer, RenderResult, Settings, render  # noqa: E402
+from .render import Renderer, RenderResult, render  # noqa: E402
+from .settings import HEURISTICS, PARAMS, Settings  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -44,4 +44,4 @@ def register() -> None:
 register()
 
 __all__ = ["render", "Renderer", "RenderResult", "Settings", "register",
-           "UnsupportedPluginError", "HEURISTICS", "read_exr", "write_exr"]
+           "UnsupportedPluginError", "HEURISTICS", "PARAMS", "read_exr", "write_exr"]

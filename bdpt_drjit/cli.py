@@ -540,7 +540,7 @@ def cmd_render(args) -> int:
     chose_pass_size = args.samples_per_pass is not None or "samples_per_pass" in settings
     cli_settings = {"max_depth": args.max_depth, "rr_depth": args.rr_depth, "mis": args.mis,
                     "technique": args.technique, "light_image": args.light_image,
-                    "hide_emitters": args.hide_emitters, "strategies": args.strategy_set,
+                    "hide_emitters": args.hide_emitters, "strategy_subset": args.strategy_set,
                     "samples_per_pass": args.samples_per_pass}
     settings.update({k: v for k, v in cli_settings.items() if v is not None})
     settings.setdefault("samples_per_pass", 0)

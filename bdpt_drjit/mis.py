@@ -33,7 +33,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-HEURISTICS = ("power", "balance", "uniform", "lafortune")
+from .settings import HEURISTICS
 
 
 class Heuristic:

@@ -29,71 +29,15 @@ from .compact import SparseLights
 from .emitters import Emitters
 from .film import FilmAccumulator
 from .mis import Heuristic
+from .settings import Settings
 from .walk import trace_camera_subpaths, trace_light_subpaths
 
-DEFAULT_MEMORY_BUDGET = 2 * 1024 ** 3
 # Bytes per lane: stored light vertices (compact interaction, throughput, MIS
 # state: 141 bytes each, at most max_depth of them) and the transient state of one
 # depth step.  Calibrated on peak RSS (Cornell box, 1920x1080, 1 spp): 1221 bytes per
 # lane at max_depth 8, 1501 at max_depth 10; the estimate below errs high.
 _VERTEX_BYTES = 145
 _LANE_BYTES = 400
-
-
-@dataclass
-class Settings:
-    """Integrator parameters, named as in Mitsuba (see integrators/bdpt.py)."""
-    max_depth: int = -1
-    rr_depth: int = 5
-    mis: str = "power"
-    light_image: bool = True
-    hide_emitters: bool = False
-    technique: tuple[int, int] | None = None
-    strategies: str = "all"
-    samples_per_pass: int = 0
-    memory_budget: int = DEFAULT_MEMORY_BUDGET
-
-    def __post_init__(self):
-        if isinstance(self.technique, str):
-            self.technique = parse_technique(self.technique)
-        if self.max_depth < -1:
-            raise ValueError("bdpt: max_depth must be -1 (unbounded) or >= 0, got %d" % self.max_depth)
-        if self.rr_depth < 1:
-            raise ValueError("bdpt: rr_depth must be >= 1, got %d" % self.rr_depth)
-        if self.samples_per_pass < 0:
-            raise ValueError("bdpt: samples_per_pass must be >= 0 (0 = automatic)")
-        Heuristic(self.mis)          # validates the name
-        if self.mis == "lafortune":  # L&W's scheme has no light image (t = 1)
-            self.light_image = False
-        if self.strategies not in STRATEGY_SETS:
-            raise ValueError("bdpt: strategies must be one of %s, got %r"
-                             % (", ".join(STRATEGY_SETS), self.strategies))
-        if self.strategies == "pt":
-            self.light_image = False
-        if self.strategies == "lt" and not self.light_image:
-            raise ValueError("bdpt: strategies='lt' (light tracing) needs light_image")
-        if self.technique is not None:
-            s, t = self.technique
-            if s < 0 or t < 1:
-                raise ValueError("bdpt: technique (s,t) needs s >= 0 and t >= 1, got %s" % (self.technique,))
-            if t == 1 and not self.light_image:
-                raise ValueError("bdpt: technique %d,1 is a light-tracing strategy, but light_image is false" % s)
-
-
-# Strategy subsets of the same engine, to show what MIS buys: "pt" = path tracing
-# with next-event estimation (s <= 1, MIS between the two), "lt" = light tracing
-# (t = 1: one strategy per path length, weight 1).
-STRATEGY_SETS = ("all", "pt", "lt")
-
-
-def parse_technique(text: str | None):
-    if text in (None, "", "all"):
-        return None
-    try:
-        s, t = (int(x) for x in str(text).replace("(", "").replace(")", "").split(","))
-    except ValueError:
-        raise ValueError("bdpt: technique must be written \"s,t\" (e.g. \"1,2\"), got %r" % (text,)) from None
-    return s, t
 
 
 @dataclass
@@ -115,7 +59,7 @@ class PassContext:
 
     @property
     def use_mis(self) -> bool:
-        return self.settings.technique is None and self.settings.strategies != "lt"
+        return self.settings.technique is None and self.settings.strategy_subset != "lt"
 
     def connects(self, i: int) -> bool:
         """Does some enabled strategy s, t >= 2 connect light vertex y_i?"""
@@ -128,7 +72,7 @@ class PassContext:
 
     @property
     def pt_only(self) -> bool:
-        return self.settings.strategies == "pt"
+        return self.settings.strategy_subset == "pt"
 
     def enabled(self, s: int, t: int) -> bool:
         st = self.settings
@@ -137,9 +81,9 @@ class PassContext:
             return False
         if st.technique is not None and st.technique != (s, t):
             return False
-        if st.strategies == "pt" and not (s <= 1 and t >= 2):
+        if st.strategy_subset == "pt" and not (s <= 1 and t >= 2):
             return False
-        if st.strategies == "lt" and t != 1:
+        if st.strategy_subset == "lt" and t != 1:
             return False
         if t == 1 and not st.light_image:
             return False
@@ -210,7 +154,7 @@ class Renderer:
             sensor = sensors[sensor]
         camera_stage.check_sensor(sensor)
         self.scene, self.sensor = scene, sensor
-        self.settings = Settings(**settings)
+        self.settings = Settings.from_dict(settings)
         self.emitters = Emitters(scene)
         if self.emitters.count == 0:
             warnings.warn("bdpt: the scene has no emitters; the image is black", stacklevel=2)
@@ -292,9 +236,9 @@ class Renderer:
             return t - 1, (s - 1 if s >= 2 else 0)
         if st.max_depth < 0:
             return None, None
-        if st.strategies == "pt":
+        if st.strategy_subset == "pt":
             return st.max_depth, -1
-        if st.strategies == "lt":
+        if st.strategy_subset == "lt":
             return 0, st.max_depth - 1
         return st.max_depth, st.max_depth - (1 if st.light_image else 2)
 

@@ -63,9 +63,9 @@ BDPT_LAFORTUNE = Method("bdpt-lafortune", "BDPT lafortune", "bdpt", (("mis", "la
 BDPT_NO_LT = Method("bdpt-no-lt", "BDPT without light image", "bdpt",
                     (("mis", "power"), ("light_image", False)), "C4", "--")
 BDPT_PT = Method("bdpt-pt", "BDPT engine, PT strategies only", "bdpt",
-                 (("mis", "power"), ("strategies", "pt")), "C7", ":")
+                 (("mis", "power"), ("strategy_subset", "pt")), "C7", ":")
 BDPT_LT = Method("bdpt-lt", "BDPT engine, LT strategies only", "bdpt",
-                 (("mis", "power"), ("strategies", "lt")), "C8", ":")
+                 (("mis", "power"), ("strategy_subset", "lt")), "C8", ":")
 PATH = Method("path", "Mitsuba path", "mitsuba", (("type", "path"),), "C3", "-")
 PTRACER = Method("ptracer", "Mitsuba ptracer", "mitsuba", (("type", "ptracer"),), "C5", "-.")
 

@@ -9,45 +9,7 @@ s = 0 (a camera subpath hits an emitter), s = 1 (next-event estimation), t = 1
 ray connects the two subpaths).  Light paths hitting the lens (t = 0) cannot occur
 with the pinhole camera.
 
-.. list-table::
-   :header-rows: 1
-
-   * - Parameter
-     - Type
-     - Description
-   * - max_depth
-     - integer
-     - Longest path, in edges (1: emitters seen directly; 2: direct light).
-       -1 = unbounded, ended by Russian roulette. (Default: -1)
-   * - rr_depth
-     - integer
-     - Subpath vertex at which Russian roulette starts. (Default: 5)
-   * - mis
-     - string
-     - MIS heuristic: ``power`` (exponent 2), ``balance``, ``uniform`` (all
-       strategies that can make a path weigh the same) or ``lafortune``
-       (Lafortune & Willems' specularity-based weights; no light image).
-       (Default: power)
-   * - light_image
-     - boolean
-     - Include the t = 1 (light tracing) strategies; without them MIS
-       renormalizes over the rest. (Default: true)
-   * - hide_emitters
-     - boolean
-     - Hide emitters seen directly by the camera. (Default: false)
-   * - technique
-     - string
-     - Render a single strategy ``"s,t"`` without MIS weighting (for tests and
-       for studying strategies). (Default: all strategies)
-   * - strategies
-     - string
-     - ``all``; ``pt`` = only path tracing with next-event estimation (s <= 1),
-       ``lt`` = only light tracing (t = 1): the same engine without MIS's other
-       strategies, to show what they buy. (Default: all)
-   * - samples_per_pass
-     - integer
-     - Samples per pixel per pass; 0 chooses it so the vertex buffers fit
-       ``memory_budget`` (2 GiB). (Default: 0)
+{params}
 
 Supported: the ``perspective`` sensor; ``area``, ``point``, ``spot``, ``constant``,
 ``envmap`` and ``directional`` emitters; every Mitsuba BSDF.  Other sensors and
@@ -70,18 +32,18 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-_PARAMS = {"max_depth": int, "rr_depth": int, "mis": str, "light_image": bool,
-           "hide_emitters": bool, "technique": str, "strategies": str, "samples_per_pass": int,
-           "memory_budget": int}
+from bdpt_drjit.settings import PARAM, Settings, canonical_name, rst_table  # noqa: E402
+
+__doc__ = __doc__.replace("{params}", rst_table())
 
 
 def _settings_from(props: mi.Properties) -> dict:
+    """The plugin's properties as settings (current, renamed or Mitsuba 0.5 names)."""
     settings = {}
     for key in props.keys():
-        if key not in _PARAMS:
-            raise ValueError("bdpt: unknown parameter '%s' (known: %s)"
-                             % (key, ", ".join(sorted(_PARAMS))))
-        settings[key] = _PARAMS[key](props[key])
+        name = canonical_name(key)
+        kind = PARAM[name].kind
+        settings[name] = props[key] if kind is not bool else bool(props[key])
     return settings
 
 
@@ -90,7 +52,6 @@ class BDPTIntegrator(mi.SamplingIntegrator):
 
     def __init__(self, props: mi.Properties):
         super().__init__(props)
-        from bdpt_drjit.render import Settings
         self.settings = _settings_from(props)
         Settings(**self.settings)          # fail at load time on bad values
 

@@ -43,7 +43,7 @@ def sphere_under_sky():
 
 @pytest.mark.parametrize("settings", [
     dict(), dict(mis="balance"), dict(mis="uniform"), dict(light_image=False),
-    dict(strategies="pt"), dict(strategies="lt"), dict(max_depth=-1),
+    dict(strategy_subset="pt"), dict(strategy_subset="lt"), dict(max_depth=-1),
     # Every reflected path has length 2: each of its strategies alone sees all of it.
     dict(technique=(0, 3)), dict(technique=(1, 2)), dict(technique=(2, 1))])
 def test_convex_sphere_under_constant_sky_reflects_albedo_times_sky(sphere_under_sky, settings):
@@ -109,7 +109,7 @@ def floor_under_sun():
 
 @pytest.mark.parametrize("settings", [
     dict(), dict(mis="balance"), dict(mis="uniform"), dict(light_image=False),
-    dict(strategies="lt"), dict(technique=(1, 2)), dict(technique=(2, 1))])
+    dict(strategy_subset="lt"), dict(technique=(1, 2)), dict(technique=(2, 1))])
 def test_floor_under_directional_light(floor_under_sun, settings):
     per_seed = np.array([bdpt_drjit.render(floor_under_sun, spp=64, seed=s, max_depth=3,
                                            **settings).image[..., :3].mean() for s in range(6)])

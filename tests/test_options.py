@@ -197,13 +197,13 @@ def test_spectral_and_mono_variants(variant):
 @pytest.mark.slow
 @pytest.mark.parametrize("subset, ref", [("pt", "path"), ("lt", "ptracer")])
 def test_strategy_subsets_match_their_mitsuba_counterparts(box, subset, ref):
-    """strategies="pt" (s <= 1, MIS between emitter hits and NEE) and "lt" (t = 1)
+    """strategy_subset="pt" (s <= 1, MIS between emitter hits and NEE) and "lt" (t = 1)
     are complete estimators on their own: they agree with path and ptracer."""
-    res = bdpt_drjit.render(box, spp=4, max_depth=4, strategies=subset, strategy_images=True)
+    res = bdpt_drjit.render(box, spp=4, max_depth=4, strategy_subset=subset, strategy_images=True)
     assert all((s <= 1 and t >= 2) if subset == "pt" else t == 1 for (s, t) in res.strategies)
-    ours = [bdpt_drjit.render(box, spp=32, seed=s, max_depth=4, strategies=subset).image for s in range(10)]
+    ours = [bdpt_drjit.render(box, spp=32, seed=s, max_depth=4, strategy_subset=subset).image for s in range(10)]
     theirs = [mitsuba_render(box, ref, 64, seed=40 + s, max_depth=4) for s in range(10)]
-    assert_statistically_equal(ours, theirs, what="strategies=" + subset)
+    assert_statistically_equal(ours, theirs, what="strategy_subset=" + subset)
 
 
 @pytest.mark.parametrize("settings", [dict(max_depth=8), dict(max_depth=-1),

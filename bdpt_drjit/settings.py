@@ -1,0 +1,209 @@
+"""The integrator's parameters, declared once.
+
+``PARAMS`` is the single declaration: ``Settings`` (the validated values the engine
+reads), the Mitsuba plugin's properties and its reference table, the command line's
+options with their choices and bounds, and the README's table all come from it
+(tests/test_settings.py checks the README against it).  Names follow Mitsuba's
+(``max_depth``, ``rr_depth``, ``hide_emitters``, ``samples_per_pass``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from dataclasses import dataclass
+
+HEURISTICS = ("power", "balance", "uniform", "lafortune")
+# Strategy subsets of the same engine, to show what MIS buys: "pt" = path tracing
+# with next-event estimation (s <= 1, MIS between the two), "lt" = light tracing
+# (t = 1: one strategy per path length, weight 1).
+STRATEGY_SUBSETS = ("all", "pt", "lt")
+DEFAULT_MEMORY_BUDGET = 2 * 1024 ** 3
+
+
+@dataclass(frozen=True)
+class Param:
+    """One integrator parameter: its Mitsuba name, type, default and documentation."""
+    name: str
+    kind: type
+    default: object
+    doc: str
+    choices: tuple | None = None
+    minimum: int | None = None
+
+    @property
+    def flag(self) -> str:
+        """The command-line option (``--max-depth``; booleans whose default is true
+        are switched off with ``--no-...``)."""
+        base = self.name.replace("_", "-")
+        return "--no-" + base if self.kind is bool and self.default else "--" + base
+
+    @property
+    def default_text(self) -> str:
+        if self.kind is bool:
+            return "true" if self.default else "false"
+        if self.name == "memory_budget":
+            return "2 GiB"
+        return str(self.default)
+
+
+PARAMS = (
+    Param("max_depth", int, -1, "Longest path, in edges (1: emitters seen directly; "
+          "2: direct light). -1 = unbounded, ended by Russian roulette.", minimum=-1),
+    Param("rr_depth", int, 5, "Subpath vertex at which Russian roulette starts.", minimum=1),
+    Param("mis", str, "power", "MIS heuristic: ``power`` (exponent 2), ``balance``, "
+          "``uniform`` (every strategy able to make a path weighs the same) or "
+          "``lafortune`` (Lafortune & Willems' specularity weights; no light image).",
+          choices=HEURISTICS),
+    Param("light_image", bool, True, "Include the t = 1 (light tracing) strategies, "
+          "splatted onto the film; without them MIS renormalizes over the rest."),
+    Param("hide_emitters", bool, False, "Hide emitters seen directly by the camera."),
+    Param("technique", str, "all", "Render the single strategy ``\"s,t\"`` without MIS "
+          "weighting (for tests and for studying strategies)."),
+    Param("strategy_subset", str, "all", "``all``; ``pt`` = path tracing with next-event "
+          "estimation only (s <= 1), ``lt`` = light tracing only (t = 1): the same engine "
+          "without MIS's other strategies.", choices=STRATEGY_SUBSETS),
+    Param("samples_per_pass", int, 0, "Samples per pixel per pass; 0 chooses it so that "
+          "a pass fits ``memory_budget``.", minimum=0),
+    Param("memory_budget", int, DEFAULT_MEMORY_BUDGET, "Bytes a pass may use for its "
+          "wavefront state and stored light vertices.", minimum=1 << 20),
+)
+PARAM = {p.name: p for p in PARAMS}
+# Old names that still work, with a DeprecationWarning.
+RENAMED = {"strategies": "strategy_subset"}
+# Mitsuba 0.5/0.6 ``bdpt`` parameters: the ones with a meaning here, and what to
+# do about the rest.
+LEGACY = {"maxDepth": "max_depth", "rrDepth": "rr_depth", "lightImage": "light_image",
+          "hideEmitters": "hide_emitters"}
+LEGACY_REFUSED = {
+    "sampleDirect": "next-event estimation (s = 1) is always one of bdpt's strategies; "
+                    "use strategy_subset or technique to choose strategies",
+    "strictNormals": "bdpt always gives zero weight where shading and geometric normals "
+                     "disagree (as Mitsuba 0.5 did with strictNormals=true); remove it",
+}
+
+
+def parse_technique(text):
+    """``"s,t"``, ``(s, t)``, ``"all"`` or None -> (s, t) or None."""
+    if text is None or text in ("", "all"):
+        return None
+    if isinstance(text, (tuple, list)):
+        s, t = text
+        return int(s), int(t)
+    try:
+        s, t = (int(x) for x in str(text).replace("(", "").replace(")", "").split(","))
+    except ValueError:
+        raise ValueError("bdpt: technique must be written \"s,t\" (e.g. \"1,2\"), got %r"
+                         % (text,)) from None
+    return s, t
+
+
+def canonical_name(key: str) -> str:
+    """A parameter's current name, from a current, renamed or legacy one; raises
+    ValueError for names that are unknown or refused."""
+    if key in PARAM:
+        return key
+    if key in RENAMED:
+        warnings.warn("bdpt: parameter '%s' is now called '%s'" % (key, RENAMED[key]),
+                      DeprecationWarning, stacklevel=3)
+        return RENAMED[key]
+    if key in LEGACY:
+        return LEGACY[key]
+    if key in LEGACY_REFUSED:
+        raise ValueError("bdpt: Mitsuba 0.5 parameter '%s' has no equivalent: %s"
+                         % (key, LEGACY_REFUSED[key]))
+    raise ValueError("bdpt: unknown parameter '%s' (known: %s)" % (key, ", ".join(PARAM)))
+
+
+def _convert(p: Param, value):
+    if p.name == "technique":
+        return parse_technique(value)
+    if p.kind is bool:
+        if isinstance(value, str):
+            if value.lower() not in ("true", "false", "1", "0"):
+                raise ValueError("bdpt: %s must be true or false, got %r" % (p.name, value))
+            return value.lower() in ("true", "1")
+        return bool(value)
+    try:
+        value = p.kind(value)
+    except (TypeError, ValueError):
+        raise ValueError("bdpt: %s must be a%s %s, got %r" % (
+            p.name, "n" if p.kind is int else "", p.kind.__name__, value)) from None
+    if p.choices is not None and value not in p.choices:
+        raise ValueError("bdpt: unknown %s %r for %s (choose one of %s)"
+                         % ("heuristic" if p.name == "mis" else "value", value, p.name,
+                            ", ".join(p.choices)))
+    if p.minimum is not None and value < p.minimum:
+        raise ValueError("bdpt: %s must be >= %d, got %d" % (p.name, p.minimum, value))
+    return value
+
+
+@dataclass
+class Settings:
+    """Validated integrator parameters (see ``PARAMS`` for their meaning)."""
+    max_depth: int = PARAM["max_depth"].default
+    rr_depth: int = PARAM["rr_depth"].default
+    mis: str = PARAM["mis"].default
+    light_image: bool = PARAM["light_image"].default
+    hide_emitters: bool = PARAM["hide_emitters"].default
+    technique: tuple | None = None
+    strategy_subset: str = PARAM["strategy_subset"].default
+    samples_per_pass: int = PARAM["samples_per_pass"].default
+    memory_budget: int = PARAM["memory_budget"].default
+
+    def __post_init__(self):
+        for p in PARAMS:
+            setattr(self, p.name, _convert(p, getattr(self, p.name)))
+        if self.mis == "lafortune":  # L&W's scheme has no light image (t = 1)
+            self.light_image = False
+        if self.strategy_subset == "pt":
+            self.light_image = False
+        if self.strategy_subset == "lt" and not self.light_image:
+            raise ValueError("bdpt: strategy_subset='lt' (light tracing) needs light_image")
+        if self.technique is not None:
+            self._check_technique()
+
+    def _check_technique(self):
+        s, t = self.technique
+        if s < 0 or t < 1:
+            raise ValueError("bdpt: technique (s,t) needs s >= 0 and t >= 1, got %d,%d" % (s, t))
+        if 0 <= self.max_depth < s + t - 1:
+            raise ValueError("bdpt: technique %d,%d makes paths of %d edges, longer than "
+                             "max_depth %d: the image would be black"
+                             % (s, t, s + t - 1, self.max_depth))
+        if t == 1 and self.strategy_subset == "pt":
+            raise ValueError("bdpt: technique %d,1 is a light-tracing strategy, outside "
+                             "strategy_subset 'pt'" % s)
+        if t >= 2 and self.strategy_subset == "lt":
+            raise ValueError("bdpt: technique %d,%d is not a light-tracing strategy, outside "
+                             "strategy_subset 'lt'" % (s, t))
+        if t == 1 and not self.light_image:
+            raise ValueError("bdpt: technique %d,1 is a light-tracing strategy, but "
+                             "light_image is false%s" % (s, " (mis='lafortune' has no light "
+                                                         "image)" if self.mis == "lafortune" else ""))
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "Settings":
+        """Settings from keyword values under current, renamed or legacy names."""
+        out = {}
+        for key, value in values.items():
+            out[canonical_name(key)] = value
+        return cls(**out)
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def rst_table() -> str:
+    """The plugin's parameter table (reStructuredText, as Mitsuba's plugin pages)."""
+    lines = [".. list-table::", "   :header-rows: 1", "", "   * - Parameter", "     - Type",
+             "     - Description"]
+    for p in PARAMS:
+        kind = {int: "integer", bool: "boolean", str: "string"}[p.kind]
+        lines += ["   * - %s" % p.name, "     - %s" % kind,
+                  "     - %s (Default: %s)" % (p.doc, p.default_text)]
+    return "\n".join(lines)
+
+
+def markdown_rows() -> list[tuple[str, str]]:
+    """(name, default) of each parameter, as the README's table shows them."""
+    return [(p.name, p.default_text) for p in PARAMS]
