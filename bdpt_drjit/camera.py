@@ -19,8 +19,9 @@ from .emitters import UnsupportedPluginError, plugin_name
 class CameraRays:
     ray: mi.RayDifferential3f
     weight: mi.Spectrum       # sensor sampling weight (spectral response), 1 in RGB
-    pos: mi.Vector2f          # film position to splat the sample at
-    pinhole: mi.Point3f       # z_0
+    pos: mi.Vector2f          # film position to put the sample at
+    origin: mi.Point3f        # z_0, the pinhole
+    pdf_w: mi.Float           # solid-angle density of the ray's direction over the film
 
 
 def check_sensor(sensor: mi.Sensor) -> None:
@@ -28,6 +29,20 @@ def check_sensor(sensor: mi.Sensor) -> None:
         raise UnsupportedPluginError(
             "bdpt: sensor plugin '%s' is not supported; only 'perspective' (a pinhole "
             "camera, whose pdfs bdpt models exactly) is" % plugin_name(sensor))
+
+
+def select_sensor(scene: mi.Scene, sensor) -> mi.Sensor:
+    """The sensor to render (an index into the scene's sensors, or a sensor)."""
+    if isinstance(sensor, int):
+        sensors = scene.sensors()
+        if not sensors:
+            raise ValueError("bdpt: the scene has no sensor")
+        if not 0 <= sensor < len(sensors):
+            raise ValueError("bdpt: sensor index %d is out of range: the scene has %d "
+                             "sensor%s" % (sensor, len(sensors), "" if len(sensors) == 1 else "s"))
+        sensor = sensors[sensor]
+    check_sensor(sensor)
+    return sensor
 
 
 def film_grid(film: mi.Film):
@@ -64,4 +79,15 @@ def sample_camera_rays(sensor: mi.Sensor, sampler: mi.Sampler, pixel_offset: int
                                                  dr.fma(pos_f, scale, offset), aperture)
     splat_pos = mi.Vector2f(pos) if film.rfilter().is_box_filter() else pos_f
     pinhole = mi.Point3f(sensor.world_transform().translation())
-    return CameraRays(ray=ray, weight=weight, pos=splat_pos, pinhole=pinhole)
+    return CameraRays(ray=ray, weight=weight, pos=splat_pos, origin=pinhole,
+                      pdf_w=direction_pdf_w(sensor, ray))
+
+
+def direction_pdf_w(sensor: mi.Sensor, ray: mi.Ray3f) -> mi.Float:
+    """The camera's solid-angle density of a primary ray's direction (tech. rep. eq.
+    31): importance * d^2 = 1 / (A cos^3) from ``sample_direction`` at any point on
+    the ray, A the film's area at unit distance."""
+    it = dr.zeros(mi.Interaction3f)
+    it.p = ray.o + ray.d
+    ds, importance = sensor.sample_direction(it, mi.Point2f(0.5))
+    return mi.unpolarized_spectrum(importance)[0] * dr.square(ds.dist)

@@ -275,20 +275,25 @@ class Emitters:
         si.wi, si.wavelengths, si.time = d, wavelengths, time
         return emitter.eval(si, active)
 
-    def environment_pdfs(self, emitter, ref: mi.Interaction3f, d_escape, active=True):
-        """(P_nee, emission_pdf) of an environment direction: the solid-angle density
-        with which next-event estimation from ``ref`` picks the escape direction
-        (pmf included), and the emission density of the ray coming back along it."""
+    def environment_nee_pdf_w(self, emitter, ref: mi.Interaction3f, d_escape, active=True):
+        """The solid-angle density with which next-event estimation from ``ref`` picks
+        the direction ``d_escape`` toward an environment or directional emitter (pmf
+        included; a directional light's one direction is picked with its pmf alone)."""
         ds = dr.zeros(mi.DirectionSample3f)
         ds.d, ds.emitter, ds.time = d_escape, emitter, ref.time
         nee = self.scene.pdf_emitter_direction(ref, ds, active)
-        _, emission, _, _ = self.emission_pdfs(emitter, -d_escape, -d_escape, active)
         if DIRECTIONAL in self.kinds_present:
-            # A directional light is picked with its pmf alone (discrete direction).
             is_dir = self.kind_of(emitter, active) == DIRECTIONAL
             pmf = self.scene.pdf_emitter(self.index(emitter, active), active)
             nee = dr.select(is_dir, pmf, nee)
-        return nee, emission
+        return nee
+
+    def environment_pdfs(self, emitter, ref: mi.Interaction3f, d_escape, active=True):
+        """(P_nee in solid angle, emission density) of an environment direction: see
+        ``environment_nee_pdf_w``; the emission density is that of the ray coming
+        back along ``d_escape``."""
+        _, emission, _, _ = self.emission_pdfs(emitter, -d_escape, -d_escape, active)
+        return self.environment_nee_pdf_w(emitter, ref, d_escape, active), emission
 
     def kind_of(self, emitter, active=True) -> mi.UInt32:
         return dr.gather(mi.UInt32, self.kind, self.index(emitter, active), active)

@@ -4,30 +4,41 @@ Two kinds of estimates land on the film, and Mitsuba's ``hdrfilm.develop`` divid
 by the weight channel, so they need separate image blocks:
 
 * camera-side strategies (t >= 2): one value per camera sample, put once per pass
-  at the sample's film position with weight 1 (normalized per pixel by develop);
+  at the sample's film position with weight 1 (normalized per pixel by develop),
+  with alpha 1 where the camera ray hit a surface;
 * light-tracing strategies (t = 1): splatted wherever the light vertex projects,
   with weight 0 and alpha 0, and normalized at the end by W*H / (number of light
   paths) -- the same normalization as Mitsuba's ``ptracer``.
 
-Per-strategy images (on request) use the same two kinds of blocks; camera-side
-strategy blocks borrow the camera block's weights when developed, so that the
-strategy images add up exactly to the image.
+These puts run after the walks, in kernels of their own, so that the walks'
+kernels never hold the film's size.  Per-strategy images (on request) have a layer
+each (strategies.StrategySet.layers); camera-side layers borrow the camera block's
+weights when developed, so that the layers add up exactly to the image.
+
+``raw`` and ``add_raw`` hand the undeveloped sums between machines (cluster
+rendering): a merge of raw sums is the same estimator as one render of all passes.
 """
 from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 
 class FilmAccumulator:
-    def __init__(self, film: mi.Film, coalesce: bool, strategy_images: bool):
+    def __init__(self, film: mi.Film, coalesce: bool, layers: list | None = None):
         self.film = film
         film.prepare([])
         self.camera = film.create_block()
         self.camera.set_coalesce(self.camera.coalesce() and coalesce)
         self.light = self._splat_block()
-        self.strategy_images = strategy_images
-        self.strategies: dict[tuple[int, int], mi.ImageBlock] = {}
+        # Strategy-image layers: (s, t) pairs or ("k", k) groups; a group of a path
+        # length has both kinds of strategies, so a block of each kind.
+        self.layers = layers or []
+        self.layer_camera = {i: film.create_block() for i, (_, t) in enumerate(self.layers)
+                             if t != 1}
+        self.layer_light = {i: self._splat_block() for i, (s, t) in enumerate(self.layers)
+                            if t == 1 or s == "k"}
         self.light_paths = 0            # total number of light subpaths traced
         self.crop_pixels = int(dr.prod(film.crop_size()))
 
@@ -37,32 +48,44 @@ class FilmAccumulator:
         block.set_coalesce(False)
         return block
 
-    def strategy_block(self, s: int, t: int) -> mi.ImageBlock | None:
-        if not self.strategy_images:
-            return None
-        if (s, t) not in self.strategies:
-            self.strategies[(s, t)] = (self._splat_block() if t == 1
-                                       else self.film.create_block())
-        return self.strategies[(s, t)]
+    # -- writing (after each pass's walks) ---------------------------------------------
+    def put_camera(self, rays, radiance, hit, images=None, lanes: int = 0):
+        """One value per camera sample; ``images``: the pass's per-layer values."""
+        alpha = dr.select(hit, 1.0, 0.0)
+        self.camera.put(rays.pos, rays.ray.wavelengths, radiance, alpha, 1.0)
+        for index, block in self.layer_camera.items():
+            offset = dr.opaque(mi.UInt32, index * lanes)
+            value = dr.gather(mi.Spectrum, images, dr.arange(mi.UInt32, lanes) + offset)
+            block.put(rays.pos, rays.ray.wavelengths, value, 0.0, 0.0)
 
-    # -- writing -----------------------------------------------------------------
-    def put_camera(self, pos, wavelengths, value, alpha):
-        self.camera.put(pos, wavelengths, value, alpha, 1.0)
+    def put_splats(self, splats, count: int, wavelengths, layer_of=None):
+        """The light image's splats of a pass (``splats``: the pool's items)."""
+        active = dr.arange(mi.UInt32, dr.width(splats.s)) < dr.opaque(mi.UInt32, count)
+        pos = splats.pos + mi.Vector2f(self.light.offset())
+        wl = dr.gather(type(wavelengths), wavelengths, splats.lane, active)
+        self.light.put(pos, wl, splats.value, 0.0, 0.0, active)
+        for index, block in self.layer_light.items():
+            mine = active & (layer_of(splats.s) == dr.opaque(mi.Int32, index))
+            block.put(pos, wl, splats.value, 0.0, 0.0, mine)
 
-    @staticmethod
-    def put_strategy(block, pos, wavelengths, value, active):
-        """Camera-side strategy image: value only, weights come from the camera block."""
-        if block is not None:
-            block.put(pos, wavelengths, value, 0.0, 0.0, active)
+    # -- raw sums (cluster rendering) ------------------------------------------------------
+    def raw(self) -> dict:
+        """The undeveloped sums: camera and light blocks (and layers), light paths."""
+        out = {"camera": np.array(self.camera.tensor()), "light": np.array(self.light.tensor()),
+               "light_paths": self.light_paths}
+        for kind, blocks in (("camera", self.layer_camera), ("light", self.layer_light)):
+            for index, block in blocks.items():
+                out["layer:%d:%s" % (index, kind)] = np.array(block.tensor())
+        return out
 
-    def splat(self, s: int, uv, wavelengths, value, active):
-        """Light-tracing contribution at film position uv (crop-relative, from
-        ``sensor.sample_direction``) into the light block and its strategy block."""
-        pos = uv + mi.Vector2f(self.light.offset())
-        self.light.put(pos, wavelengths, value, 0.0, 0.0, active)
-        block = self.strategy_block(s, 1)
-        if block is not None:
-            block.put(pos, wavelengths, value, 0.0, 0.0, active)
+    def blocks(self) -> list:
+        return ([self.camera, self.light] + list(self.layer_camera.values())
+                + list(self.layer_light.values()))
+
+    def clear(self) -> None:
+        for block in self.blocks():
+            block.clear()
+        self.light_paths = 0
 
     # -- developing ----------------------------------------------------------------
     def _develop(self, block: mi.ImageBlock) -> mi.TensorXf:
@@ -72,25 +95,30 @@ class FilmAccumulator:
         dr.eval(img)
         return img
 
-    def _light_scale(self) -> float:
-        return self.crop_pixels / max(self.light_paths, 1)
+    def _light_scale(self) -> mi.Float:
+        return dr.opaque(mi.Float, self.crop_pixels / max(self.light_paths, 1))
 
     def develop(self) -> mi.TensorXf:
+        """The image: the camera block developed, plus the light block scaled; the
+        light block has alpha 0, so alpha is the camera block's."""
         return self._develop(self.camera) + self._develop(self.light) * self._light_scale()
 
-    def develop_strategies(self) -> dict[tuple[int, int], mi.TensorXf]:
+    def develop_layers(self) -> dict:
+        """Each layer's image; they add up to ``develop()``."""
         out = {}
         cam = self.camera.tensor()
         ch = cam.shape[2]
-        for (s, t), block in sorted(self.strategies.items()):
-            if t == 1:
-                out[(s, t)] = self._develop(block) * self._light_scale()
-                continue
-            # Borrow the camera block's weight channel (the last one).
-            tensor = mi.TensorXf(block.tensor())
-            weight_mask = dr.tile(mi.Float([0.0] * (ch - 1) + [1.0]), cam.shape[0] * cam.shape[1])
-            data = dr.select(weight_mask > 0, cam.array, tensor.array)
-            merged = mi.ImageBlock(mi.TensorXf(data, cam.shape), block.offset(),
-                                   self.film.rfilter(), self.film.sample_border())
-            out[(s, t)] = self._develop(merged)
+        weight_mask = dr.tile(mi.Float([0.0] * (ch - 1) + [1.0]), cam.shape[0] * cam.shape[1])
+        for index, layer in enumerate(self.layers):
+            img = 0
+            if index in self.layer_camera:
+                # Borrow the camera block's weight channel (the last one).
+                block = self.layer_camera[index]
+                data = dr.select(weight_mask > 0, cam.array, block.tensor().array)
+                merged = mi.ImageBlock(mi.TensorXf(data, cam.shape), block.offset(),
+                                       self.film.rfilter(), self.film.sample_border())
+                img = self._develop(merged)
+            if index in self.layer_light:
+                img = img + self._develop(self.layer_light[index]) * self._light_scale()
+            out[layer] = img
         return out

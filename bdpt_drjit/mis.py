@@ -236,3 +236,130 @@ def weight_lafortune(prod_before, w_here, strategy: str, delta_light=False):
     if strategy == "nee":
         return prod_before * dr.select(delta_light, 1.0, 1.0 - w_here)
     return prod_before * (1.0 - w_here)
+
+
+# ---------------------------------------------------------------------------
+# Every weighting decision of a render
+# ---------------------------------------------------------------------------
+
+class Weights:
+    """The MIS weight of each kind of strategy, for one render's strategy set.
+
+    The strategy code (connect.py, splat.py) evaluates a contribution and the
+    densities at its endpoints, named by measure, and asks here for the weight.
+    The decisions that depend on which strategies are on live here alone:
+
+    * no MIS for a single technique or the light-tracing subset (one strategy per
+      path length): every weight is 1;
+    * the path-tracing subset: s = 0 and s = 1 are each other's only rivals, so
+      the camera chains' light-subpath terms are dropped (d_vc, d_vcm = 0);
+    * (1,1), the emitter seen through the pinhole, is the only rival of (0,2);
+    * Lafortune & Willems' weights, which use no densities at all.
+    """
+
+    def __init__(self, heuristic: str, strategies):
+        self.h = Heuristic(heuristic)
+        self.on = strategies.use_mis
+        self.lafortune = self.on and self.h.is_lafortune
+        self.pt_only = strategies.pt_only
+        self.rival_11 = bool(strategies.enabled(1, 1))
+        self.light_image = strategies.light_image
+
+    # -- the chains along a subpath (see the functions above) ------------------------
+    def camera_start(self, cam_pdf_w, light_ratio):
+        return camera_start(self.h, cam_pdf_w, light_ratio, self.light_image)
+
+    def light_start(self, emission_pdf_aw, cos_emit, delta):
+        return light_start(self.h, emission_pdf_aw, cos_emit, delta)
+
+    def after_hit(self, d_vcm, d_vc, dist2, cos_hit):
+        return after_hit(self.h, d_vcm, d_vc, dist2, cos_hit)
+
+    def after_scatter(self, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta):
+        return after_scatter(self.h, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta)
+
+    @staticmethod
+    def specularity(bsdf_flags, delta_sampled=False):
+        return lafortune_specularity(bsdf_flags, delta_sampled)
+
+    # -- the weights of the strategies ---------------------------------------------
+
+    def emission_hit(self, d_vcm, d_vc, lw, from_pinhole, nee_pdf_a, pos_pdf_a, emission_pdf_aw):
+        """s = 0 at an area emitter.  The rival s = 1 strategy picks the hit point by
+        next-event estimation from the previous camera vertex (``nee_pdf_a``), or,
+        when that vertex is the pinhole, by the emission sampling of (1,1)."""
+        if not self.on:
+            return mi.Float(1.0)
+        if self.lafortune:
+            return weight_lafortune(lw, None, "hit")
+        rival = pos_pdf_a if self.rival_11 else 0.0
+        direct_pdf_a = dr.select(from_pinhole, rival, nee_pdf_a)
+        return weight_emission_hit(self.h, d_vcm, 0.0 if self.pt_only else d_vc,
+                                   direct_pdf_a, emission_pdf_aw)
+
+    def environment_hit(self, d_vcm, d_vc, lw, from_pinhole, nee_pdf_w, emission_pdf_aw):
+        """s = 0 on a ray that escaped: the chains as the last scatter left them, and
+        the rivals' densities in solid angle (y_0 at infinity has no distance, tech.
+        rep. section 5.1; SmallVCM's background light).  A camera ray that escapes
+        at once has no rival: y_0 at infinity cannot be connected to the pinhole."""
+        if not self.on:
+            return mi.Float(1.0)
+        if self.lafortune:
+            return weight_lafortune(lw, None, "hit")
+        w = weight_emission_hit(self.h, d_vcm, 0.0 if self.pt_only else d_vc,
+                                nee_pdf_w, emission_pdf_aw)
+        return dr.select(from_pinhole, 1.0, w)
+
+    @staticmethod
+    def nee_density_w(ds, pdf_emitter_direction_w, directional):
+        """The solid-angle density with which next-event estimation picked ``ds``.
+        An area emitter: Mitsuba's ``pdf_emitter_direction`` (not ``ds.pdf``: the
+        s = 0 strategy and the light subpaths can only query the former, and for a
+        sphere seen from inside the two differ slightly).  A delta-position emitter:
+        its pmf per unit area, pmf * d^2 in solid angle (cos = 1), as in SmallVCM.
+        A directional light: a discrete direction at infinity, its pmf alone."""
+        pdf = dr.select(ds.delta, ds.pdf * dr.square(ds.dist), pdf_emitter_direction_w)
+        return dr.select(directional, ds.pdf, pdf)
+
+    def nee(self, d_vcm, d_vc, lw, specularity, delta_light, bsdf_pdf_w, nee_pdf_w,
+            emission_pdf_aw, cos_cam, cos_light, bsdf_rev_w):
+        """s = 1 at camera vertex z_{t-1}; a delta light cannot be hit (s = 0)."""
+        if not self.on:
+            return mi.Float(1.0)
+        if self.lafortune:
+            return weight_lafortune(lw, specularity, "nee", delta_light)
+        if self.pt_only:             # rivals: the emitter hit only
+            d_vcm, d_vc = 0.0, 0.0
+        return weight_nee(self.h, d_vcm, d_vc, dr.select(delta_light, 0.0, bsdf_pdf_w),
+                          nee_pdf_w, emission_pdf_aw, cos_cam, cos_light, bsdf_rev_w)
+
+    def light_to_camera(self, d_vcm, d_vc, cam_pdf_a, bsdf_rev_w):
+        """t = 1, s >= 2 (``cam_pdf_a`` already scaled by N_C / N_L)."""
+        if not self.on:
+            return mi.Float(1.0)
+        return weight_light_to_camera(self.h, d_vcm, d_vc, cam_pdf_a, bsdf_rev_w)
+
+    def emitter_to_camera(self, cam_pdf_a, pos_pdf_a):
+        """(1,1) (``cam_pdf_a`` already scaled by N_C / N_L)."""
+        if not self.on:
+            return mi.Float(1.0)
+        return weight_emitter_to_camera(self.h, cam_pdf_a, pos_pdf_a)
+
+    def connect(self, light_d_vcm, light_d_vc, cam_d_vcm, cam_d_vc, lw, specularity,
+                cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w):
+        """s, t >= 2."""
+        if not self.on:
+            return mi.Float(1.0)
+        if self.lafortune:
+            return weight_lafortune(lw, specularity, "connect")
+        return weight_connect(self.h, light_d_vcm, light_d_vc, cam_d_vcm, cam_d_vc,
+                              cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w)
+
+    def first_light_vertex(self, d_vc0, nee_pdf_a, nee_pdf_w, infinite, emission_pdf_aw,
+                           dist2, cos_hit):
+        """(d_vcm, d_vc) at y_1.  y_0 at infinity (environment, directional light):
+        the next-event density is a solid-angle one and no distance enters (tech. rep.
+        section 5.1; SmallVCM skips dist^2 for infinite lights)."""
+        nee = dr.select(infinite, nee_pdf_w, nee_pdf_a)
+        return light_first_hit(self.h, d_vc0, nee, emission_pdf_aw,
+                               dr.select(infinite, 1.0, dist2), cos_hit)

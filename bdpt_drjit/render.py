@@ -1,18 +1,18 @@
-"""The renderer: passes of wavefronts, each a list of named stages.
+"""The renderer: passes, each a list of named stages.
 
     for each pass:
-        camera rays       camera.sample_camera_rays      one lane per pixel sample
-        light subpaths    walk.trace_light_subpaths      + t = 1 splats; stores y_i
-        camera subpaths   walk.trace_camera_subpaths     + s = 0, s = 1, and s, t >= 2
-                          (connect.connect_vertices: z_j to every stored y_i, in
-                          the kernel of depth j, while z_j's interaction is live)
-        film              film.FilmAccumulator           camera block + light block
+        camera rays        camera.sample_camera_rays     one lane per pixel sample
+        light subpaths     walk.trace_light_subpaths     y_i stored for connections,
+                                                         t = 1 splats (splat.py)
+        camera subpaths    walk.trace_camera_subpaths    s = 0, s = 1 and s, t >= 2
+                                                         (connect.py)
+        film               film.FilmAccumulator          camera block, then splats
 
 Each camera sample i is paired with light subpath i (N_L = N_C), so the light image
 is normalized by W*H / (total camera samples) and MIS uses N_L / N_C = 1.
-Passes split the work so that vertex buffers stay under a memory budget; a pass
-covers all pixels at ``spp_pass`` samples, or a range of pixels at 1 sample for
-very large films.  Peak memory therefore does not grow with spp.
+Passes split the work so that a pass's state and stored light vertices stay under
+a memory budget; a pass covers all pixels at ``spp_pass`` samples, or a range of
+pixels at 1 sample for very large films.  Peak memory does not grow with spp.
 """
 from __future__ import annotations
 
@@ -25,86 +25,64 @@ import mitsuba as mi
 import numpy as np
 
 from . import camera as camera_stage
-from .compact import SparseLights
 from .emitters import Emitters
 from .film import FilmAccumulator
-from .mis import Heuristic
+from .mis import Weights
 from .settings import Settings
+from .strategies import StrategyImages, StrategySet
+from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore
 from .walk import trace_camera_subpaths, trace_light_subpaths
 
-# Bytes per lane: stored light vertices (compact interaction, throughput, MIS
-# state: 141 bytes each, at most max_depth of them) and the transient state of one
-# depth step.  Calibrated on peak RSS (Cornell box, 1920x1080, 1 spp): 1221 bytes per
-# lane at max_depth 8, 1501 at max_depth 10; the estimate below errs high.
-_VERTEX_BYTES = 145
-_LANE_BYTES = 400
+# Bytes per lane besides the pools: camera rays, radiance, the lane's list head and
+# the samplers' state (the walks' state lives in registers of the loop kernels).
+_LANE_BYTES = 160
+# Stored light vertices and splats per lane a pass plans for (measured: 3.0 and 3.2
+# on the Cornell box, at max_depth 8 and -1 alike; 2.6 and 3.4 with its glass and
+# mirror spheres).  A pass that needs more runs its light walk again with larger pools.
+_VERTICES_PER_LANE = 4
+_SPLATS_PER_LANE = 5
 
 
 @dataclass
 class PassContext:
-    """What the stages of one pass share."""
+    """What the stages of one pass share; the walks only read it."""
     scene: mi.Scene
     sensor: mi.Sensor
     settings: Settings
+    strategies: StrategySet
+    weights: Weights
     emitters: Emitters
-    h: Heuristic
-    film: FilmAccumulator
     camera_sampler: mi.Sampler
     light_sampler: mi.Sampler
-    time: mi.Float = None
-    wavelengths: mi.UnpolarizedSpectrum = None
-    camera_weight: mi.Spectrum = None
-    rays: mi.UInt32 = None
-    light_ratio: float = 1.0        # N_L / N_C
-
-    @property
-    def use_mis(self) -> bool:
-        return self.settings.technique is None and self.settings.strategy_subset != "lt"
-
-    def connects(self, i: int) -> bool:
-        """Does some enabled strategy s, t >= 2 connect light vertex y_i?"""
-        st = self.settings
-        if st.technique is not None:
-            return st.technique[0] == i + 1 and st.technique[1] >= 2 and self.enabled(*st.technique)
-        # Unbounded depth: whether (i+1, t) is enabled does not depend on t >= 2.
-        t_max = st.max_depth + 1 if st.max_depth >= 0 else 2
-        return any(self.enabled(i + 1, t) for t in range(2, t_max + 1))
-
-    @property
-    def pt_only(self) -> bool:
-        return self.settings.strategy_subset == "pt"
-
-    def enabled(self, s: int, t: int) -> bool:
-        st = self.settings
-        k = s + t - 1
-        if k < 1 or (st.max_depth >= 0 and k > st.max_depth):
-            return False
-        if st.technique is not None and st.technique != (s, t):
-            return False
-        if st.strategy_subset == "pt" and not (s <= 1 and t >= 2):
-            return False
-        if st.strategy_subset == "lt" and t != 1:
-            return False
-        if t == 1 and not st.light_image:
-            return False
-        if st.hide_emitters and k == 1:
-            return False
-        if self.emitters.count == 0:
-            return False
-        return True
+    lane: mi.UInt32                    # each lane's own index (pools, strategy images)
+    time: mi.Float                     # per lane, shared by its two subpaths
+    wavelengths: mi.UnpolarizedSpectrum
+    camera_weight: mi.Spectrum         # sensor sampling weight (spectral response)
+    light_ratio: mi.Float              # N_L / N_C
+    images: StrategyImages | None = None
 
 
 @dataclass
 class RenderResult:
-    """What ``render`` returns.  ``image`` is an (H, W, C) float32 NumPy array."""
+    """What ``render`` returns.  ``image`` is an (H, W, C) float32 NumPy array.
+    On request, ``strategy_images`` maps (s, t) to the MIS-weighted image of that
+    strategy, for paths of up to strategies.LAYER_K edges, and ``length_images``
+    maps a longer path length k to the image of all its strategies (k =
+    strategies.DEEP_K + 1 holding every longer path); together they sum to ``image``."""
     image: np.ndarray
     tensor: mi.TensorXf
-    strategies: dict = field(default_factory=dict)
+    strategy_images: dict = field(default_factory=dict)
+    length_images: dict = field(default_factory=dict)
     spp: int = 0
     passes: int = 0
     time: float = 0.0
     rays: int = 0
     stats: dict = field(default_factory=dict)
+
+    @property
+    def strategies(self) -> dict:
+        """Old name of ``strategy_images``."""
+        return self.strategy_images
 
     @property
     def samples_per_second(self) -> float:
@@ -137,6 +115,30 @@ def check_variant() -> None:
     _llvm.check(variant)
 
 
+def plan_passes(spp: int, pixels: int, max_lanes: int, explicit: int, accepted) -> list:
+    """Split spp x pixels into passes (pixel offset, pixels, spp) of at most
+    ``max_lanes`` lanes.  Automatic passes are equal in size: Dr.Jit keeps freed
+    buffers for reuse by requests of the same size, so a smaller last pass would
+    allocate a second set beside the cached first one (measured: 1.9 -> 3.0 GB at
+    1920x1080).  ``accepted(n)``: the count the sampler accepts for n (orthogonal
+    rounds to a prime squared), as Mitsuba's render does."""
+    per_pass = min(explicit or spp, max(1, max_lanes // pixels), spp)
+    if not explicit or per_pass < explicit:
+        per_pass = -(-spp // -(-spp // per_pass))    # equal passes
+    passes = []
+    if pixels * per_pass <= max_lanes:
+        done = 0
+        while done < spp:
+            n = accepted(min(per_pass, spp - done))
+            passes.append((0, pixels, n))
+            done += n
+        return passes
+    chunks = -(-pixels // max_lanes)                 # very large film: pixel ranges, 1 spp
+    chunk = -(-pixels // chunks)
+    return [(start, min(chunk, pixels - start), 1)
+            for _ in range(spp) for start in range(0, pixels, chunk)]
+
+
 class Renderer:
     """A progressive BDPT render of one sensor: call ``run_pass`` until ``done``.
 
@@ -147,69 +149,34 @@ class Renderer:
     def __init__(self, scene: mi.Scene, sensor=0, spp: int | None = None, seed: int = 0,
                  strategy_images: bool = False, **settings):
         check_variant()
-        if isinstance(sensor, int):
-            sensors = scene.sensors()
-            if not sensors:
-                raise ValueError("bdpt: the scene has no sensor")
-            sensor = sensors[sensor]
-        camera_stage.check_sensor(sensor)
-        self.scene, self.sensor = scene, sensor
+        self.sensor = camera_stage.select_sensor(scene, sensor)
+        self.scene = scene
         self.settings = Settings.from_dict(settings)
         self.emitters = Emitters(scene)
         if self.emitters.count == 0:
             warnings.warn("bdpt: the scene has no emitters; the image is black", stacklevel=2)
+        self.strategies = StrategySet(self.settings, self.emitters.count > 0)
+        self.weights = Weights(self.settings.mis, self.strategies)
         self.seed = int(seed)
         self.strategy_images = strategy_images
-        film = sensor.film()
+        film = self.sensor.film()
         grid = camera_stage.film_grid(film)
         self.pixels = int(grid[0]) * int(grid[1])
-        self.spp = int(spp) if spp else sensor.sampler().sample_count()
+        self.spp = int(spp) if spp else self.sensor.sampler().sample_count()
         if self.spp <= 0:
             raise ValueError("bdpt: spp must be positive, got %d" % self.spp)
-        self._plan()
-        self.film = FilmAccumulator(film, coalesce=self.spp >= 4, strategy_images=strategy_images)
-        self.spp_done = 0
-        self.passes_done = 0
+        layers = self.strategies.layers() if strategy_images else []
+        lane_bytes = (_LANE_BYTES + _VERTICES_PER_LANE * RECORD_BYTES
+                      + _SPLATS_PER_LANE * SPLAT_BYTES + len(layers) * 16)
+        max_lanes = min(max(1024, self.settings.memory_budget // lane_bytes), 2 ** 31)
+        self.plan = plan_passes(self.spp, self.pixels, max_lanes, self.settings.samples_per_pass,
+                                self._accepted_count)
+        self.film = FilmAccumulator(film, coalesce=self.spp >= 4, layers=layers)
+        self.spp_done = self.passes_done = 0
         self.time = 0.0
         self.rays = 0
-        self._sample_count = 0       # camera samples = light paths so far
         self._last_lanes = 0
-
-    # -- planning ----------------------------------------------------------------
-    def _lane_bytes(self) -> int:
-        d = self.settings.max_depth if self.settings.max_depth >= 0 else 24
-        return d * _VERTEX_BYTES + _LANE_BYTES
-
-    def _plan(self) -> None:
-        """Split spp x pixels into passes of at most ``max_lanes`` lanes.
-
-        Automatic passes are made equal in size: Dr.Jit keeps freed buffers for
-        reuse by requests of the same size, so a smaller last pass would allocate a
-        second set beside the cached first one (measured: 1.9 -> 3.0 GB at 1920x1080
-        with passes of 1.38M and 0.70M lanes; 1.3 GB with two equal ones)."""
-        max_lanes = max(1024, self.settings.memory_budget // self._lane_bytes())
-        max_lanes = min(max_lanes, 2 ** 31)
-        explicit = self.settings.samples_per_pass
-        # An explicit samples_per_pass is honoured up to the memory budget.
-        per_pass = min(explicit or self.spp, max(1, max_lanes // self.pixels), self.spp)
-        if not explicit or per_pass < explicit:
-            per_pass = -(-self.spp // -(-self.spp // per_pass))    # equal passes
-        passes = []
-        if self.pixels * per_pass <= max_lanes:
-            done = 0
-            while done < self.spp:
-                # Some samplers round the count (orthogonal: to a prime squared); a
-                # pass then takes what the sampler accepts, as Mitsuba's render does.
-                n = self._accepted_count(min(per_pass, self.spp - done))
-                passes.append((0, self.pixels, n))
-                done += n
-        else:                          # very large film: equal pixel ranges at 1 spp
-            chunks = -(-self.pixels // max_lanes)
-            chunk = -(-self.pixels // chunks)
-            for _ in range(self.spp):
-                for start in range(0, self.pixels, chunk):
-                    passes.append((start, min(chunk, self.pixels - start), 1))
-        self.plan = passes
+        self._capacity = {}          # pool capacities per lane, raised on overflow
 
     def _accepted_count(self, n: int) -> int:
         sampler = self.sensor.sampler().clone()
@@ -219,28 +186,6 @@ class Renderer:
     @property
     def done(self) -> bool:
         return self.passes_done >= len(self.plan)
-
-    # -- one pass -----------------------------------------------------------------
-    def _sampler(self, stream: int, pass_index: int, lanes: int, spp: int) -> mi.Sampler:
-        sampler = self.sensor.sampler().clone()
-        sampler.set_sample_count(spp)
-        sampler.set_samples_per_wavefront(spp)
-        sampler.seed(_mix_seed(self.seed, pass_index, stream), lanes)
-        return sampler
-
-    def _max_vertices(self):
-        """How many camera and light vertices the enabled strategies can use."""
-        st = self.settings
-        if st.technique is not None:
-            s, t = st.technique
-            return t - 1, (s - 1 if s >= 2 else 0)
-        if st.max_depth < 0:
-            return None, None
-        if st.strategy_subset == "pt":
-            return st.max_depth, -1
-        if st.strategy_subset == "lt":
-            return 0, st.max_depth - 1
-        return st.max_depth, st.max_depth - (1 if st.light_image else 2)
 
     def run_pass(self) -> None:
         if self.done:
@@ -258,36 +203,64 @@ class Renderer:
         self.passes_done += 1
         self.spp_done = sum(p[1] * p[2] for p in self.plan[:self.passes_done]) // self.pixels
 
+    # -- one pass -----------------------------------------------------------------------
+    def _sampler(self, stream: int, lanes: int, spp: int) -> mi.Sampler:
+        sampler = self.sensor.sampler().clone()
+        sampler.set_sample_count(spp)
+        sampler.set_samples_per_wavefront(spp)
+        sampler.seed(_mix_seed(self.seed, self.passes_done, stream), lanes)
+        return sampler
+
+    def _context(self, rays, sampler, lanes: int, spp: int) -> PassContext:
+        images = StrategyImages(self.strategies, lanes) if self.strategy_images else None
+        return PassContext(
+            scene=self.scene, sensor=self.sensor, settings=self.settings,
+            strategies=self.strategies, weights=self.weights, emitters=self.emitters,
+            camera_sampler=sampler, light_sampler=self._sampler(1, lanes, spp),
+            lane=dr.arange(mi.UInt32, lanes), time=rays.ray.time,
+            wavelengths=rays.ray.wavelengths, camera_weight=rays.weight,
+            light_ratio=dr.opaque(mi.Float, 1.0), images=images)
+
     def _render_pass(self, pixel_offset, n_pixels, spp, lanes):
-        pass_index = self.passes_done
-        cam_sampler = self._sampler(0, pass_index, lanes, spp)
-        ctx = PassContext(scene=self.scene, sensor=self.sensor, settings=self.settings,
-                          emitters=self.emitters, h=Heuristic(self.settings.mis),
-                          film=self.film, camera_sampler=cam_sampler,
-                          light_sampler=self._sampler(1, pass_index, lanes, spp))
-        ctx.rays = dr.zeros(mi.UInt32, lanes)
-        max_cam, max_light = self._max_vertices()
-
         # Stage 1: camera rays.
-        cam = camera_stage.sample_camera_rays(self.sensor, cam_sampler, pixel_offset, n_pixels, spp)
-        ctx.time, ctx.wavelengths, ctx.camera_weight = cam.ray.time, cam.ray.wavelengths, cam.weight
-        cam_sampler.schedule_state()
-        dr.eval(cam)
+        sampler = self._sampler(0, lanes, spp)
+        rays = camera_stage.sample_camera_rays(self.sensor, sampler, pixel_offset, n_pixels, spp)
+        sampler.schedule_state()
+        dr.eval(rays)
+        ctx = self._context(rays, sampler, lanes, spp)
 
-        # Stage 2: light subpaths (+ t = 1 splats).
-        light_vertices, sparse = [], SparseLights(ctx, lanes)
-        if self.emitters.count and (max_light is None or max_light >= 0) and (
-                max_light != 0 or self.settings.light_image):
-            light_vertices = trace_light_subpaths(ctx, max_light, sparse)
+        # Stage 2: light subpaths: stored light vertices and t = 1 splats.
+        store, light_rays = self._light_subpaths(ctx, lanes, spp)
 
-        # Stage 3: camera subpaths (+ s = 0, s = 1, and s, t >= 2 connections to the
-        # stored light vertices, in the same kernel per depth).
-        radiance = trace_camera_subpaths(ctx, cam, max_cam, light_vertices, sparse)
+        # Stage 3: camera subpaths, with every strategy t >= 2.
+        cam = trace_camera_subpaths(ctx, rays, store)
+        dr.eval(cam.radiance, cam.hit, cam.rays)
 
         # Stage 4: film.
-        self.film.put_camera(cam.pos, cam.ray.wavelengths, radiance, 1.0)
+        self.film.put_camera(rays, cam.radiance, cam.hit,
+                             None if ctx.images is None else ctx.images.values, lanes)
+        if store is not None:
+            self.film.put_splats(store.splats.items, store.splats.size(), ctx.wavelengths,
+                                 None if ctx.images is None else ctx.images.layer_of)
         self.film.light_paths += lanes
-        self.rays += int(dr.sum(ctx.rays)[0])
+        self.rays += int(dr.sum(cam.rays + light_rays)[0])
+
+    def _light_subpaths(self, ctx, lanes: int, spp: int):
+        """Stage 2; runs the light walk again with larger pools if one overflowed
+        (nothing has reached the film yet, and the sampler is seeded the same)."""
+        max_i = self.strategies.max_light_vertices()
+        if max_i is not None and max_i < 0:             # no strategy uses light subpaths
+            return None, dr.zeros(mi.UInt32, lanes)
+        per_lane = self._capacity.setdefault(lanes, [_VERTICES_PER_LANE, _SPLATS_PER_LANE])
+        while True:
+            store = LightVertexStore(lanes, lanes * per_lane[0], lanes * per_lane[1])
+            light_rays = trace_light_subpaths(ctx, store)
+            dr.eval(light_rays, store.vertices.items, store.splats.items, store.first)
+            if not store.overflowed():
+                return store, light_rays
+            per_lane[0] = max(per_lane[0], -(-store.vertices.size() * 5 // (4 * lanes)))
+            per_lane[1] = max(per_lane[1], -(-store.splats.size() * 5 // (4 * lanes)))
+            ctx.light_sampler = self._sampler(1, lanes, spp)
 
     # -- results -------------------------------------------------------------------
     def tensor(self) -> mi.TensorXf:
@@ -295,13 +268,14 @@ class Renderer:
 
     def result(self) -> RenderResult:
         tensor = self.tensor()
-        strategies = {}
-        if self.strategy_images:
-            strategies = {k: v.numpy() for k, v in self.film.develop_strategies().items()}
-        return RenderResult(image=tensor.numpy(), tensor=tensor, strategies=strategies,
+        layers = self.film.develop_layers() if self.strategy_images else {}
+        return RenderResult(image=tensor.numpy(), tensor=tensor,
+                            strategy_images={k: v.numpy() for k, v in layers.items() if k[0] != "k"},
+                            length_images={k[1]: v.numpy() for k, v in layers.items() if k[0] == "k"},
                             spp=self.spp_done, passes=self.passes_done, time=self.time,
                             rays=self.rays,
-                            stats={"pixels": self.pixels, "lanes_per_pass": max(p[1] * p[2] for p in self.plan),
+                            stats={"pixels": self.pixels,
+                                   "lanes_per_pass": max(p[1] * p[2] for p in self.plan),
                                    "rays_per_sample": self.rays / max(1, self.spp_done * self.pixels)})
 
 
@@ -309,12 +283,11 @@ def render(scene, spp: int | None = None, seed: int = 0, sensor=0,
            strategy_images: bool = False, **settings) -> RenderResult:
     """Render ``scene`` (a ``mi.Scene`` or a path to an XML file) with BDPT.
 
-    Keyword settings: max_depth (-1), rr_depth (5), mis ("power" | "balance" |
-    "uniform" | "lafortune"), light_image (True), hide_emitters (False), technique
-    (None or (s, t) / "s,t"), strategies ("all" | "pt" | "lt"), samples_per_pass
-    (0 = automatic), memory_budget (bytes).
-    With ``strategy_images=True`` the result's ``strategies[(s, t)]`` holds every
-    strategy's MIS-weighted image; they sum to ``image``.
+    Keyword settings: see ``bdpt_drjit.settings.PARAMS`` (max_depth, rr_depth, mis,
+    light_image, hide_emitters, technique, strategy_subset, samples_per_pass,
+    memory_budget).  With ``strategy_images=True`` the result's
+    ``strategy_images[(s, t)]`` holds every strategy's MIS-weighted image; they sum
+    to ``image``.
     """
     if isinstance(scene, str):
         scene = mi.load_file(scene)

@@ -1,307 +1,241 @@
-"""Subpath walks: light subpaths and camera subpaths, one depth step per kernel.
+"""The subpath walks: each a symbolic loop over depths, one kernel per walk.
 
-Each step intersects, updates the MIS state (mis.py), records the vertex, adds the
-strategies that need nothing but this vertex (t = 1 splats on light subpaths; s = 0
-and s = 1 on camera subpaths), samples the BSDF and applies Russian roulette.  A
-camera step also connects its vertex z_j to the stored light vertices (s, t >= 2).
-One ``dr.eval`` per depth; depth-dependent choices are Python branches that give a
-handful of kernel variants, never a kernel per depth.
+    light walk, per depth i:  intersect y_i -> MIS to area measure -> t = 1 splat
+                              -> store y_i for connections -> scatter -> roulette
+    camera walk, per depth j: intersect z_j -> s = 0 (emitter or environment hit)
+                              -> MIS to area measure -> s = 1 (next event)
+                              -> s, t >= 2 (z_j to the lane's stored light vertices)
+                              -> scatter -> roulette
 
-Sparse work is compacted (compact.py): once few camera lanes live, the camera
-wavefront shrinks to them; light vertices alive in few lanes are connected as a list
-of items.  Neither changes a sample: the same seed gives the same image.
+The loops are Dr.Jit symbolic loops (``dr.while_loop``): the kernel of a walk is
+traced once, whatever the depth a subpath reaches, the seed, the film size or
+the spp, so a render compiles nothing that an earlier one compiled.  On the CPU a
+SIMD packet runs the loop only while one of its lanes lives, which is what
+compacting a wavefront of dead lanes bought, with no kernel per depth.
+
+Loop state is ``PathState``; every random number of a depth is drawn at the top
+of the depth into ``DepthSamples`` (pbrt-v4's ``RaySamples``), so which of them a
+strategy uses never shifts the others.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 
-from . import compact, connect, mis
-from .compact import Draws, SparseLights, connect_sparse, send_sparse_home
-from .emitters import DIRECTIONAL, ENV
-from .records import (Vertex, adjoint_correction, compact_interaction, eval_adjoint,
-                      gather_vertex, geometric_cosines, reverse_pdf)
+from . import connect, splat
+from .surface import (SurfaceRecord, adjoint_correction, eval_adjoint, geometric_cosines,
+                      reverse_pdf)
+from .vertices import NONE, LightVertex
 
-RADIANCE, IMPORTANCE = connect.RADIANCE, connect.IMPORTANCE
+RADIANCE = mi.BSDFContext(mi.TransportMode.Radiance)
+IMPORTANCE = mi.BSDFContext(mi.TransportMode.Importance)
 
 
-def _interaction(si: mi.SurfaceInteraction3f) -> mi.Interaction3f:
-    """The part of a vertex that pdf queries on the next vertex need."""
+@dataclass
+class DepthSamples:
+    """Every random number one depth of a walk uses, drawn together in this order."""
+    endpoint: mi.Point2f    # camera walk: NEE's emitter sample (s = 1); light walk: the
+                            # lens sample of the t = 1 connection
+    lobe: mi.Float          # BSDF lobe
+    direction: mi.Point2f   # BSDF direction
+    roulette: mi.Float      # Russian roulette
+
+    @staticmethod
+    def draw(sampler: mi.Sampler) -> "DepthSamples":
+        return DepthSamples(endpoint=sampler.next_2d(), lobe=sampler.next_1d(),
+                            direction=sampler.next_2d(), roulette=sampler.next_1d())
+
+
+@dataclass
+class PathState:
+    """A subpath walk, one lane per subpath: the loop state of both walks."""
+    ray: mi.Ray3f           # the ray toward the next vertex
+    beta: mi.Spectrum       # throughput up to the ray's origin, 1/q of roulette included
+    rr_beta: mi.Spectrum    # the same for Russian roulette's survival probability
+    eta: mi.Float           # product of relative IORs crossed (roulette, as Mitsuba's)
+    d_vcm: mi.Float         # MIS chain state at the ray's origin (mis.py)
+    d_vc: mi.Float
+    prev: mi.Interaction3f  # the ray's origin vertex (pdf queries of the next one)
+    depth: mi.UInt32        # j of the vertex z_j (or i of y_i) the ray will hit
+    active: mi.Bool         # the subpath goes on
+    rays: mi.UInt32         # rays this lane traced (statistics)
+    lw: mi.Float            # camera walk, mis="lafortune": product of W(z_m) so far
+    radiance: mi.Spectrum   # camera walk: sum of this sample's strategies
+    hit: mi.Bool            # camera walk: the camera ray hit a surface (film alpha)
+    last_item: mi.UInt32    # light walk: this lane's last stored vertex (or NONE)
+
+    @staticmethod
+    def start(ray, beta, d_vcm, d_vc, prev, active) -> "PathState":
+        n = dr.width(ray.o)
+        return PathState(ray=mi.Ray3f(ray), beta=mi.Spectrum(beta), rr_beta=dr.ones(mi.Spectrum, n),
+                         eta=dr.ones(mi.Float, n), d_vcm=mi.Float(d_vcm), d_vc=mi.Float(d_vc),
+                         prev=prev, depth=dr.ones(mi.UInt32, n), active=mi.Bool(active),
+                         rays=dr.zeros(mi.UInt32, n), lw=dr.ones(mi.Float, n),
+                         radiance=dr.zeros(mi.Spectrum, n), hit=dr.zeros(mi.Bool, n),
+                         last_item=dr.full(mi.UInt32, NONE, n))
+
+
+def _point(p, n, time, wavelengths) -> mi.Interaction3f:
     it = dr.zeros(mi.Interaction3f)
-    it.p, it.n, it.t, it.time, it.wavelengths = si.p, si.n, si.t, si.time, si.wavelengths
+    it.p, it.n, it.time, it.wavelengths = p, n, time, wavelengths
     return it
 
 
-def _scatter(ctx, sampler, si, bsdf, mode_ctx, rev_ctx, d_vcm, d_vc, beta, alpha, eta,
-             active, depth, importance: bool):
-    """Sample the BSDF at the current vertex and extend the subpath by one ray;
-    also returns whether a delta lobe was sampled."""
-    bs, weight = bsdf.sample(mode_ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
-    wo = si.to_world(bs.wo)
-    _, cos_out, ok = geometric_cosines(si, wo)
-    active = active & (ok & (bs.pdf > 0))
-    delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-    if importance:
-        # Smooth lobes: the adjoint from the BSDF itself (records.eval_adjoint); a delta
-        # lobe cannot be evaluated, so it keeps the correction with si.sh_frame.
-        # The same call gives the reverse (radiance-mode) pdf.
-        f_adj, pdf_rev = eval_adjoint(bsdf, si, bs.wo, active)
-        weight = dr.select(delta, weight * adjoint_correction(si, wo), f_adj * dr.rcp(bs.pdf))
-    else:
-        pdf_rev = reverse_pdf(bsdf, rev_ctx, si, bs.wo, active)
-    d_vcm, d_vc = mis.after_scatter(ctx.h, d_vcm, d_vc, cos_out, bs.pdf, pdf_rev, delta)
-    beta = beta * weight
-    alpha = alpha * weight
-    eta = eta * bs.eta
-    # Russian roulette (Mitsuba's rule); left out of all MIS pdfs (see mis.py).
-    if depth >= ctx.settings.rr_depth:
-        q = dr.minimum(dr.max(mi.unpolarized_spectrum(alpha))
-                       * (1.0 if importance else dr.square(eta)), 0.95)
-        active = active & (sampler.next_1d(active) < q)
-        # alpha carries the 1/q as Mitsuba's throughput does; without it q would
-        # shrink geometrically and rare survivors become fireflies.
-        beta = beta * dr.rcp(q)
-        alpha = alpha * dr.rcp(q)
-    active = active & (dr.max(mi.unpolarized_spectrum(beta)) > 0)
-    ray = si.spawn_ray(wo)
-    return ray, d_vcm, d_vc, beta, alpha, eta, active, delta
+def _loop(label: str, state: PathState, sampler, step):
+    """Run ``step(state, samples)`` for every depth while some lane is active."""
+    def body(state, sampler):
+        step(state, DepthSamples.draw(sampler))
+        return state, sampler
+    state, sampler = dr.while_loop((state, sampler), lambda state, sampler: state.active,
+                                   body, label=label)
+    return state
 
 
-def trace_light_subpaths(ctx, max_vertex: int | None, sparse: SparseLights) -> list[Vertex | None]:
-    """Light vertices y_1..y_n (n <= max_vertex), splatting t = 1 on the way.
-    Entry i - 1 holds y_i, or None where no enabled strategy connects y_i to a
-    camera vertex (such as the deepest one, used by t = 1 only), or where ``sparse``
-    took it over."""
-    sampler, scene = ctx.light_sampler, ctx.scene
+# -- light subpaths -----------------------------------------------------------------
+def trace_light_subpaths(ctx, store) -> mi.UInt32:
+    """Light subpaths y_0 .. y_n: t = 1 splats and the stored vertices go to
+    ``store``; returns the rays each lane traced."""
+    es, state = _light_start(ctx, store)
+    max_i = ctx.strategies.max_light_vertices()
+
+    def step(state: PathState, u: DepthSamples):
+        si, bsdf, _ = _intersect(ctx, state)
+        i = state.depth
+        cos_in = dr.abs(dr.dot(si.n, state.ray.d))
+        dist2 = dr.squared_norm(si.p - state.prev.p)
+        first = i == 1
+        nee_a = ctx.emitters.nee_pdf_a(si, es.p, es.n, es.uv, es.emitter, es.delta_pos,
+                                       ctx.time, state.active & first & ~es.infinite)
+        nee_w = ctx.emitters.environment_nee_pdf_w(es.emitter, si, -state.ray.d,
+                                                   state.active & first & es.infinite)
+        d_vcm0, d_vc0 = ctx.weights.first_light_vertex(
+            state.d_vc, nee_a, nee_w, es.infinite, es.emission_pdf, dist2, cos_in)
+        d_vcm1, d_vc1 = ctx.weights.after_hit(state.d_vcm, state.d_vc, dist2, cos_in)
+        state.d_vcm, state.d_vc = dr.select(first, d_vcm0, d_vcm1), dr.select(first, d_vc0, d_vc1)
+        connectible = state.active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        vertex = LightVertex(surface=SurfaceRecord.of(si), beta=mi.Spectrum(state.beta), d_vcm=state.d_vcm,
+                             d_vc=state.d_vc, s=i + 1, next=mi.UInt32(NONE))
+        state.rays += splat.light_vertex_to_camera(
+            ctx, store, si, bsdf, vertex, u.endpoint, connectible & ctx.strategies.enabled(i + 1, 1))
+        state.last_item = store.add_vertex(vertex, ctx.lane, state.last_item,
+                                           connectible & ctx.strategies.stores(i + 1))
+        goes_on = state.active if max_i is None else state.active & (i < max_i)
+        _scatter(ctx, state, si, bsdf, u, goes_on, importance=True)
+
+    state = _loop("light subpaths", state, ctx.light_sampler, step)
+    return state.rays
+
+
+def _light_start(ctx, store):
+    """y_0 on an emitter and the ray leaving it; (1,1) is splatted here."""
+    sampler = ctx.light_sampler
     es = ctx.emitters.sample_emission(ctx.time, ctx.wavelengths, sampler.next_1d(),
                                       sampler.next_2d(), sampler.next_2d())
-    # Samples are drawn whether or not a strategy is enabled, so that options
-    # (hide_emitters, light_image, technique) keep the same random numbers.
-    u_cam = sampler.next_2d()
-    if ctx.enabled(1, 1):
-        connect.emitter_to_camera(ctx, es, u_cam)
-    d_vc = mis.light_start(ctx.h, es.emission_pdf, es.cos_emit, es.delta_pos | es.delta_dir)
-    d_vcm = mi.Float(0.0)
-    it0 = dr.zeros(mi.Interaction3f)
-    it0.p, it0.n, it0.time, it0.wavelengths = es.p, es.n, ctx.time, ctx.wavelengths
-    ray = it0.spawn_ray(es.d)
-    beta, active, prev_p = es.beta, mi.Bool(es.valid), es.p
-    alpha, eta = dr.ones(mi.Spectrum), mi.Float(1.0)
-    sampler.schedule_state()
-    dr.eval(es, ray, d_vc, ctx.rays)
-
-    # Compaction (as in trace_camera_subpaths) once few light lanes live: only while
-    # sparse vertices can be taken as items (their records are then compact).
-    draws = Draws(sampler)
-    width, lane = dr.width(active), None
-    full_rays, camera_weight = ctx.rays, ctx.camera_weight
-    vertices: list[Vertex] = []
-    i = 1
-    while max_vertex is None or i <= max_vertex:
-        alive = dr.count(active)[0]
-        if alive == 0:
-            break
-        if (i > 1 and sparse.on and alive < compact.COMPACT_BELOW * width
-                and width >= compact.MIN_LANES):
-            if lane is not None:
-                dr.scatter_reduce(dr.ReduceOp.Add, full_rays, ctx.rays, lane)
-            idx = dr.compress(active)
-            ray, beta, alpha, eta, d_vcm, d_vc, prev_p = (
-                dr.gather(type(x), x, idx) for x in (ray, beta, alpha, eta, d_vcm, d_vc, prev_p))
-            lane = idx if lane is None else dr.gather(mi.UInt32, lane, idx)
-            width = dr.width(idx)
-            active = dr.full(mi.Bool, True, width)
-            ctx.rays = dr.zeros(mi.UInt32, width)
-            ctx.camera_weight = dr.gather(type(camera_weight), camera_weight, lane)
-            draws.lane = lane
-        if lane is not None:
-            scatters = max_vertex is None or i < max_vertex
-            draws.prefetch([2] + ([1, 2] if scatters else [])
-                           + ([1] if scatters and i >= ctx.settings.rr_depth else []))
-        ctx.rays += dr.select(active, 1, 0)
-        pi = scene.ray_intersect_preliminary(ray, False, active)
-        si = pi.compute_surface_interaction(ray, mi.RayFlags.All, active)
-        active = active & (si.is_valid())
-        cos_in = dr.abs(dr.dot(si.n, ray.d))
-        dist2 = dr.squared_norm(si.p - prev_p)
-        if i == 1:
-            nee = ctx.emitters.nee_pdf_a(si, es.p, es.n, es.uv, es.emitter, es.delta_pos,
-                                         ctx.time, active & ~es.infinite)
-            if ctx.emitters.kinds_present & {ENV, DIRECTIONAL}:
-                # y_0 at infinity: the solid-angle NEE density, and no distance
-                # (tech. rep. section 5.1; SmallVCM skips dist^2 for infinite lights).
-                nee_w, _ = ctx.emitters.environment_pdfs(es.emitter, si, -ray.d,
-                                                         active & es.infinite)
-                nee = dr.select(es.infinite, nee_w, nee)
-                dist2 = dr.select(es.infinite, 1.0, dist2)
-            d_vcm, d_vc = mis.light_first_hit(ctx.h, d_vc, nee, es.emission_pdf, dist2, cos_in)
-        else:
-            d_vcm, d_vc = mis.after_hit(ctx.h, d_vcm, d_vc, dist2, cos_in)
-        bsdf = si.bsdf()
-        connectible = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        vertex = Vertex(si=si, beta=beta, d_vcm=d_vcm, d_vc=d_vc, connectible=connectible)
-        u_cam = draws.next_2d()
-        if ctx.enabled(i + 1, 1):
-            connect.light_vertex_to_camera(ctx, si, bsdf, vertex, i + 1, u_cam, connectible)
-        if max_vertex is None or i < max_vertex:
-            prev_p = si.p
-            ray, d_vcm, d_vc, beta, alpha, eta, active, _ = _scatter(
-                ctx, draws, si, bsdf, IMPORTANCE, RADIANCE, d_vcm, d_vc, beta, alpha,
-                eta, active, i, importance=True)
-        else:
-            active = dr.zeros(mi.Bool, width)
-        sampler.schedule_state()
-        stored = None
-        if ctx.connects(i):
-            stored = Vertex(si=compact_interaction(si), beta=vertex.beta, d_vcm=vertex.d_vcm,
-                            d_vc=vertex.d_vc, connectible=connectible)
-        dr.eval(ray, d_vcm, d_vc, beta, alpha, eta, active, prev_p, ctx.rays,
-                *([] if stored is None else [stored]))
-        if stored is not None and sparse.add(i, stored, lane):
-            stored = None
-        vertices.append(stored)
-        i += 1
-    if lane is not None:
-        dr.scatter_reduce(dr.ReduceOp.Add, full_rays, ctx.rays, lane)
-        dr.eval(full_rays)
-        ctx.rays, ctx.camera_weight = full_rays, camera_weight
-    sparse.finish()
-    return vertices
+    u_lens = sampler.next_2d()        # drawn whether or not (1,1) is on
+    rays = splat.emitter_to_camera(ctx, store, es, u_lens, es.valid & ctx.strategies.enabled(1, 1))
+    y0 = _point(es.p, es.n, ctx.time, ctx.wavelengths)
+    d_vc = ctx.weights.light_start(es.emission_pdf, es.cos_emit, es.delta_pos | es.delta_dir)
+    max_i = ctx.strategies.max_light_vertices()
+    active = es.valid & (max_i is None or max_i >= 1)
+    state = PathState.start(y0.spawn_ray(es.d), es.beta, 0.0, d_vc, y0, active)
+    state.rays += rays
+    return es, state
 
 
-def trace_camera_subpaths(ctx, cam, max_vertex: int | None, light_vertices: list[Vertex],
-                          sparse: SparseLights):
-    """Camera vertices z_1..z_n with the s = 0 and s = 1 strategies, and each z_j
-    connected to the stored light vertices (s, t >= 2) while its interaction is live;
-    returns the per-lane radiance of all these strategies.
+# -- camera subpaths ----------------------------------------------------------------
+def trace_camera_subpaths(ctx, rays, store) -> PathState:
+    """Camera subpaths z_0 .. z_n with every strategy t >= 2; returns the final
+    state (``radiance``, ``hit``, ``rays`` per lane)."""
+    max_j = ctx.strategies.max_camera_vertices()
+    d_vcm, d_vc = ctx.weights.camera_start(rays.pdf_w, ctx.light_ratio)
+    z0 = _point(rays.origin, mi.Normal3f(0.0), ctx.time, ctx.wavelengths)
+    state = PathState.start(rays.ray, rays.weight, d_vcm, d_vc, z0, max_j is None or max_j >= 1)
 
-    When few lanes survive, the wavefront is compacted (``compact.COMPACT_BELOW``): its state
-    is gathered at the live lanes, ``lane`` maps them home (pbrt-v4's wavefront
-    work items carry their pixel index the same way), light vertices are gathered
-    at ``lane``, and radiance and ray counts are scattered back."""
-    sampler, scene, sensor = ctx.camera_sampler, ctx.scene, ctx.sensor
-    draws = Draws(sampler)
-    ray = mi.Ray3f(cam.ray)
-    beta, active = mi.Spectrum(cam.weight), mi.Bool(True)
-    alpha, eta = dr.ones(mi.Spectrum), mi.Float(1.0)
-    d_vcm, d_vc = mi.Float(0.0), mi.Float(0.0)
-    lw = mi.Float(1.0)               # mis="lafortune": prod of W(z_m) over m < j
-    prev = None
-    pos = cam.pos
-    width = dr.width(ray.o)
-    radiance = dr.zeros(mi.Spectrum, width)
-    lane = None                      # compacted: the home lane of each lane
-    full_radiance = full_rays = None
+    def step(state: PathState, u: DepthSamples):
+        t = state.depth + 1
+        si, bsdf, escaped = _intersect(ctx, state)
+        state.hit |= (state.depth == 1) & si.is_valid()
+        if ctx.emitters.environment is not None:
+            _add(ctx, state, 0, t, connect.environment_hit(ctx, state, escaped))
+        cos_in = dr.abs(dr.dot(si.n, state.ray.d))
+        state.d_vcm, state.d_vc = ctx.weights.after_hit(
+            state.d_vcm, state.d_vc, dr.squared_norm(si.p - state.prev.p), cos_in)
+        connectible = state.active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        if ctx.emitters.count:
+            _add(ctx, state, 0, t, connect.emission_hit(ctx, state, si))
+            _add(ctx, state, 1, t, *connect.next_event(
+                ctx, state, si, bsdf, u.endpoint, connectible & ctx.strategies.enabled(1, t)))
+        if store is not None:
+            state.radiance, rays = connect.stored_vertices(ctx, store, state, si, bsdf, connectible)
+            state.rays += rays
+        goes_on = state.active if max_j is None else state.active & (state.depth < max_j)
+        delta = _scatter(ctx, state, si, bsdf, u, goes_on, importance=False)
+        if ctx.weights.lafortune:
+            state.lw *= ctx.weights.specularity(bsdf.flags(), delta)
 
-    def send_home():
-        """Add the compacted lanes' radiance and ray counts to their home lanes."""
-        dr.scatter_reduce(dr.ReduceOp.Add, full_radiance, radiance, lane)
-        dr.scatter_reduce(dr.ReduceOp.Add, full_rays, ctx.rays, lane)
+    return _loop("camera subpaths", state, ctx.camera_sampler, step)
 
-    j = 1
-    while max_vertex is None or j <= max_vertex:
-        if j > 1:
-            alive = dr.count(active)[0]
-            if alive == 0:
-                break
-            if alive < compact.COMPACT_BELOW * width and width >= compact.MIN_LANES:
-                if lane is None:
-                    full_radiance, full_rays = radiance, ctx.rays
-                else:
-                    send_home()
-                idx = dr.compress(active)
-                ray, beta, alpha, eta, d_vcm, d_vc, prev, lw, pos = (
-                    dr.gather(type(x), x, idx)
-                    for x in (ray, beta, alpha, eta, d_vcm, d_vc, prev, lw, pos))
-                lane = idx if lane is None else dr.gather(mi.UInt32, lane, idx)
-                width = dr.width(idx)
-                active = dr.full(mi.Bool, True, width)
-                radiance = dr.zeros(mi.Spectrum, width)
-                ctx.rays = dr.zeros(mi.UInt32, width)
-                draws.lane = lane
-            if lane is not None:
-                # This depth's draws, in the order below: NEE, then BSDF lobe and
-                # direction and Russian roulette (see _scatter).
-                scatters = max_vertex is None or j < max_vertex
-                draws.prefetch([2] + ([1, 2] if scatters else [])
-                               + ([1] if scatters and j >= ctx.settings.rr_depth else []))
-        ctx.rays += dr.select(active, 1, 0)
-        pi = scene.ray_intersect_preliminary(ray, False, active)
-        si = pi.compute_surface_interaction(ray, mi.RayFlags.All, active)
-        escaped = active & ~si.is_valid()
-        active = active & (si.is_valid())
-        if ctx.emitters.environment is not None and ctx.enabled(0, j + 1):
-            # s = 0 on a ray that escaped: the environment (MIS state as left by the
-            # last scatter: no distance to convert, tech. rep. section 5.1).
-            c = connect.environment_hit(ctx, ray, beta, d_vcm, d_vc, prev, escaped, lw)
-            radiance += c
-            ctx.film.put_strategy(ctx.film.strategy_block(0, j + 1), pos, ray.wavelengths, c, escaped)
-        cos_in = dr.abs(dr.dot(si.n, ray.d))
-        if j == 1:
-            # Camera pdf of z_1 (tech. rep. eq. 31): imp * d^2 = 1 / (A cos^3).
-            ds, imp = sensor.sample_direction(si, mi.Point2f(0.5), active)
-            cam_pdf_w = mi.unpolarized_spectrum(imp)[0] * dr.square(ds.dist)
-            d_vcm, d_vc = mis.camera_start(ctx.h, cam_pdf_w, ctx.light_ratio, ctx.settings.light_image)
-            d_vcm, d_vc = mis.after_hit(ctx.h, d_vcm, d_vc, dr.square(ds.dist), cos_in)
-        else:
-            d_vcm, d_vc = mis.after_hit(ctx.h, d_vcm, d_vc, dr.squared_norm(si.p - prev.p), cos_in)
-        bsdf = si.bsdf()
-        connectible = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        vertex = Vertex(si=si, beta=beta, d_vcm=d_vcm, d_vc=d_vc, connectible=connectible, lw=lw)
-        if ctx.enabled(0, j + 1):
-            c = connect.emission_hit(ctx, si, beta, d_vcm, d_vc, prev, active, lw)
-            radiance += c
-            ctx.film.put_strategy(ctx.film.strategy_block(0, j + 1), pos, ray.wavelengths, c, active)
-        u_light = draws.next_2d()
-        if ctx.enabled(1, j + 1):
-            c = connect.next_event(ctx, si, bsdf, vertex, u_light, connectible)
-            radiance += c
-            ctx.film.put_strategy(ctx.film.strategy_block(1, j + 1), pos, ray.wavelengths, c, active)
-        # s, t >= 2: z_j to every light vertex y_i, in this kernel.  Dead lanes are
-        # masked; compacting the pairs themselves (dr.compress per pair + gathers)
-        # measured 13% slower than this at max_depth 8.
-        sparse_now = lane is None and sparse.lane is not None and any(
-            ctx.enabled(i + 1, j + 1) for i in sparse.indices)
-        cam_record = None
-        if sparse_now:                # for connect_sparse, after this kernel
-            cam_record = Vertex(si=compact_interaction(si), beta=beta, d_vcm=d_vcm, d_vc=d_vc,
-                                connectible=connectible, lw=lw)
-        for i in range(1, len(light_vertices) + 1):
-            lv = light_vertices[i - 1]
-            if not ctx.enabled(i + 1, j + 1):
-                continue
-            if lane is None:
-                if lv is None:       # not stored, or among the sparse items
-                    continue
-            elif lv is not None:
-                lv = gather_vertex(lv, lane)
-            else:                    # sparse: connect_compacted below
-                continue
-            c = connect.connect_vertices(ctx, lv, vertex, bsdf)
-            radiance += c
-            ctx.film.put_strategy(ctx.film.strategy_block(i + 1, j + 1), pos,
-                                  ray.wavelengths, c, True)
-        if lane is not None:
-            radiance += compact.connect_compacted(ctx, sparse, vertex, bsdf, lane, j + 1)
-        if max_vertex is None or j < max_vertex:
-            prev = _interaction(si)
-            ray, d_vcm, d_vc, beta, alpha, eta, active, delta = _scatter(
-                ctx, draws, si, bsdf, RADIANCE, IMPORTANCE, d_vcm, d_vc, beta, alpha,
-                eta, active, j, importance=False)
-            if ctx.h.is_lafortune:
-                lw = lw * mis.lafortune_specularity(bsdf.flags(), delta)
-        else:
-            active = dr.zeros(mi.Bool, width)
-        sampler.schedule_state()
-        dr.eval(radiance, ray, d_vcm, d_vc, beta, alpha, eta, active, prev, lw, ctx.rays,
-                *([] if cam_record is None else [cam_record]))
-        if cam_record is not None:
-            connect_sparse(ctx, sparse, cam_record, j + 1)
-        j += 1
-    if lane is not None:
-        send_home()
-        radiance, ctx.rays = full_radiance, full_rays
-    if sparse.lane is not None:
-        send_sparse_home(sparse, radiance, ctx.rays)
-    dr.eval(radiance, ctx.rays)
-    return radiance
+
+# -- shared steps ---------------------------------------------------------------------
+def _intersect(ctx, state: PathState):
+    """The vertex the ray hits; lanes whose ray escapes stop (returned: ``escaped``)."""
+    state.rays += dr.select(state.active, 1, 0)
+    si = ctx.scene.ray_intersect(state.ray, mi.RayFlags.All, False, state.active)
+    escaped = state.active & ~si.is_valid()
+    state.active &= si.is_valid()
+    return si, si.bsdf(), escaped
+
+
+def _add(ctx, state: PathState, s, t, value, traced=None):
+    """Strategy (s, t)'s contribution to this camera sample (and its shadow ray)."""
+    state.radiance = ctx.strategies.add(ctx.images, state.radiance, ctx.lane, s, t, value)
+    if traced is not None:
+        state.rays += dr.select(traced, 1, 0)
+
+
+def _scatter(ctx, state: PathState, si, bsdf, u: DepthSamples, active, importance: bool):
+    """Sample the BSDF at the current vertex, extend the subpath by one ray, update
+    the MIS chains and apply Russian roulette; returns whether a delta lobe was
+    sampled."""
+    mode = IMPORTANCE if importance else RADIANCE
+    bs, weight = bsdf.sample(mode, si, u.lobe, u.direction, active)
+    wo = si.to_world(bs.wo)
+    _, cos_out, ok = geometric_cosines(si, wo)
+    active = active & ok & (bs.pdf > 0)
+    delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+    if importance:
+        # Smooth lobes: the adjoint from the BSDF itself (surface.eval_adjoint); a delta
+        # lobe cannot be evaluated, so it keeps the correction with si.sh_frame.  The
+        # same call gives the reverse (radiance-mode) pdf.
+        f_adj, pdf_rev_w = eval_adjoint(bsdf, si, bs.wo, active)
+        weight = dr.select(delta, weight * adjoint_correction(si, wo), f_adj * dr.rcp(bs.pdf))
+    else:
+        pdf_rev_w = reverse_pdf(bsdf, IMPORTANCE, si, bs.wo, active)
+    # Lanes that stop keep garbage from here on; nothing reads it.
+    state.d_vcm, state.d_vc = ctx.weights.after_scatter(state.d_vcm, state.d_vc, cos_out,
+                                                        bs.pdf, pdf_rev_w, delta)
+    state.beta = mi.Spectrum(state.beta * weight)       # (spectral arithmetic may
+    state.rr_beta = mi.Spectrum(state.rr_beta * weight) # give a plain Array4f)
+    state.eta *= bs.eta
+    state.prev = _point(si.p, si.n, si.time, si.wavelengths)
+    state.ray = si.spawn_ray(wo)
+    state.depth += 1
+    state.active = _roulette(ctx, state, u.roulette, active, importance)
+    return delta
+
+
+def _roulette(ctx, state: PathState, u, active, importance: bool) -> mi.Bool:
+    """Russian roulette from vertex ``rr_depth`` on (Mitsuba's rule); left out of all
+    MIS densities (see mis.py).  ``rr_beta`` carries the 1/q as Mitsuba's throughput
+    does; without it q would shrink geometrically and rare survivors be fireflies."""
+    q = dr.max(mi.unpolarized_spectrum(state.rr_beta))
+    if not importance:
+        q = q * dr.square(state.eta)
+    q = dr.minimum(q, 0.95)
+    roulette = active & (state.depth > ctx.settings.rr_depth)
+    survive = u < q
+    state.beta = mi.Spectrum(dr.select(roulette, state.beta * dr.rcp(q), state.beta))
+    state.rr_beta = mi.Spectrum(dr.select(roulette, state.rr_beta * dr.rcp(q), state.rr_beta))
+    return active & (~roulette | survive) & (dr.max(mi.unpolarized_spectrum(state.beta)) > 0)

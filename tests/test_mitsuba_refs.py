@@ -54,12 +54,12 @@ def test_unsupported_emitters_are_refused():
 @pytest.mark.parametrize("name", BSDF_SPHERES)
 def test_light_vertex_record_evaluates_like_the_interaction(name):
     """A stored light vertex keeps only part of its SurfaceInteraction
-    (records.compact_interaction).  Every BSDF here (normal and bump maps, textures,
+    (surface.SurfaceRecord).  Every BSDF here (normal and bump maps, textures,
     principled) must give the same values and pdfs, in both transport modes, from the
     record as from the full interaction: the reference scenes render at max_depth 2,
     where no stored vertex is ever connected (s, t >= 2 needs k >= 3), so only this
     test sees a field the record drops (a bump map reads dp_du and dp_dv)."""
-    from bdpt_drjit.records import compact_interaction
+    from bdpt_drjit.surface import SurfaceRecord
     path = external(*TESTS.parts, "bsdf_spheres", "test_%s_path.xml" % name)
     scene = mi.load_file(str(path), integrator="path")
     n = 4096
@@ -69,7 +69,7 @@ def test_light_vertex_record_evaluates_like_the_interaction(name):
     si = scene.ray_intersect(ray)
     hit = si.is_valid()
     assert dr.count(hit)[0] > n // 8, "the camera should see the spheres"
-    record = compact_interaction(si)
+    record = SurfaceRecord.of(si).interaction(si.time, si.wavelengths)
     wo = mi.warp.square_to_uniform_sphere(sampler.next_2d())
     for mode in (mi.TransportMode.Radiance, mi.TransportMode.Importance):
         ctx = mi.BSDFContext(mode)

@@ -1,0 +1,113 @@
+"""Stored light vertices and light-image splats of a pass: append-only pools.
+
+Only light vertices are stored (camera vertices are connected while their
+interaction is live in the camera walk).  Subpaths end at different depths, so
+instead of a slot per lane and depth, each vertex that some strategy (s, t >= 2)
+will connect is appended to one pool (``dr.scatter_inc``: on the CPU a SIMD packet
+takes consecutive entries), and each lane's vertices form a list y_1 -> y_2 -> ...
+(``first`` per lane, ``next`` per record) that the camera walk follows.  Memory and
+work then follow the vertices that exist, whatever the depth (max_depth -1 included),
+and no kernel depends on how deep a subpath went.
+
+Pools have a capacity fixed before the light walk.  Appends past it are counted but
+not written; the renderer then runs the light walk again with a larger pool
+(``overflowed``), before anything reached the film, so an overflow costs time, never
+a sample.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+
+from .surface import SurfaceRecord
+
+NONE = 0xFFFFFFFF                    # "no vertex" in first/next
+
+
+@dataclass
+class LightVertex:
+    """Light vertex y_{s-1} (s >= 2) as connections need it."""
+    surface: SurfaceRecord
+    beta: mi.Spectrum                # throughput from y_0 to here (Russian roulette included)
+    d_vcm: mi.Float                  # MIS chain state (mis.py)
+    d_vc: mi.Float
+    s: mi.UInt32                     # the light vertex count of its strategies: s = i + 1
+    next: mi.UInt32                  # the lane's next stored vertex, or NONE
+
+    @property
+    def record_bytes(self) -> int:
+        return RECORD_BYTES
+
+
+# p, n, uv, sh_frame, dp_du, dp_dv, wi, shape, instance, prim_index; beta, d_vcm, d_vc,
+# s, next (single-precision RGB; spectral variants store 4 wavelengths' worth)
+RECORD_BYTES = 4 * (3 + 3 + 2 + 9 + 3 + 3 + 3 + 1 + 1 + 1 + 3 + 1 + 1 + 1 + 1)
+
+
+@dataclass
+class Splat:
+    """One light-image (t = 1) contribution, put on the film after the light walk."""
+    pos: mi.Point2f                  # film position (pixels, crop offset included)
+    value: mi.Spectrum
+    s: mi.UInt32                     # its strategy (s, 1)
+    lane: mi.UInt32                  # the light subpath's lane (its wavelengths)
+
+
+SPLAT_BYTES = 4 * (2 + 3 + 1 + 1)
+
+
+class Pool:
+    """An append-only buffer of records of one type, with a counter."""
+
+    def __init__(self, kind, capacity: int):
+        self.capacity = int(capacity)
+        self.items = dr.empty(kind, self.capacity)
+        self.count = dr.zeros(mi.UInt32, 1)
+        self._capacity = dr.opaque(mi.UInt32, self.capacity)
+
+    def append(self, value, active) -> mi.UInt32:
+        """Append ``value`` where ``active``; returns each lane's index, NONE where
+        nothing was written."""
+        idx = dr.scatter_inc(self.count, mi.UInt32(0), active)
+        if not dr.flag(dr.JitFlag.SymbolicScope):
+            # An evaluated (wavefront) loop: the counter's result must be evaluated in
+            # the kernel that increments it before another kernel may read it.
+            dr.eval(idx)
+        ok = active & (idx < self._capacity)
+        dr.scatter(self.items, value, idx, ok)
+        return dr.select(ok, idx, NONE)
+
+    def size(self) -> int:
+        """Appends requested (may exceed the capacity: see ``overflowed``)."""
+        return int(self.count[0])
+
+    def overflowed(self) -> bool:
+        return self.size() > self.capacity
+
+
+class LightVertexStore:
+    """The pools of one pass: stored light vertices with each lane's list, and the
+    light image's splats."""
+
+    def __init__(self, lanes: int, vertex_capacity: int, splat_capacity: int):
+        self.vertices = Pool(LightVertex, max(vertex_capacity, 1))
+        self.splats = Pool(Splat, max(splat_capacity, 1))
+        self.first = dr.full(mi.UInt32, NONE, lanes)
+        dr.make_opaque(self.vertices.items, self.splats.items, self.first)
+
+    def add_vertex(self, vertex: LightVertex, lane, prev, active) -> mi.UInt32:
+        """Append y_i of ``lane`` after its stored vertex ``prev`` (NONE: the first)."""
+        vertex.next = dr.full(mi.UInt32, NONE, dr.width(lane))
+        item = self.vertices.append(vertex, active)
+        stored = item != NONE
+        dr.scatter(self.first, item, lane, stored & (prev == NONE))
+        dr.scatter(self.vertices.items.next, item, prev, stored & (prev != NONE))
+        return dr.select(stored, item, prev)
+
+    def vertex(self, item, active) -> LightVertex:
+        return dr.gather(LightVertex, self.vertices.items, item, active)
+
+    def overflowed(self) -> bool:
+        return self.vertices.overflowed() or self.splats.overflowed()
