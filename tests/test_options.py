@@ -7,7 +7,8 @@ import pytest
 import drjit as dr
 import mitsuba as mi
 import bdpt_drjit
-from conftest import assert_statistically_equal, mitsuba_render, scene_path
+from conftest import mitsuba_render, scene_path
+from stats import assert_statistically_equal
 
 
 @pytest.fixture(scope="module")
