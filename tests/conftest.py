@@ -1,5 +1,5 @@
 """Shared test fixtures and helpers: scene paths, the shared external scenes, Mitsuba's
-own renders.  The statistics are in stats.py."""
+own renders, the 16x16 Cornell box.  The statistics are in stats.py."""
 import os
 from pathlib import Path
 
@@ -50,3 +50,8 @@ def specular_pixels(scene, jitter=16):
     delta = si.is_valid() & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Delta)
     return np.array(delta).reshape(h, w, jitter).any(axis=2)
 
+
+@pytest.fixture(scope="module")
+def box():
+    """The Cornell box at 16x16 (one per test module)."""
+    return mi.load_file(scene_path("cornell-box.xml"), resx=16, resy=16)

@@ -11,11 +11,6 @@ from conftest import mitsuba_render, scene_path
 from stats import assert_statistically_equal
 
 
-@pytest.fixture(scope="module")
-def box():
-    return mi.load_file(scene_path("cornell-box.xml"), resx=16, resy=16)
-
-
 def test_three_routes_give_the_same_image(box):
     """bdpt_drjit.render, mi.render with a bdpt integrator, and an XML scene whose
     integrator is bdpt: same seed, same image (up to float atomics: splats and
@@ -205,31 +200,3 @@ def test_strategy_subsets_match_their_mitsuba_counterparts(box, subset, ref):
     ours = [bdpt_drjit.render(box, spp=32, seed=s, max_depth=4, strategy_subset=subset).image for s in range(10)]
     theirs = [mitsuba_render(box, ref, 64, seed=40 + s, max_depth=4) for s in range(10)]
     assert_statistically_equal(ours, theirs, what="strategy_subset=" + subset)
-
-
-@pytest.mark.parametrize("settings", [dict(max_depth=8), dict(max_depth=-1),
-                                      dict(max_depth=-1, mis="lafortune"),
-                                      dict(max_depth=7, technique=(3, 5), rr_depth=1)])
-def test_compaction_changes_no_sample(box, settings, monkeypatch):
-    """Compacting the camera wavefront and gathering sparse light vertices into items
-    (compact.COMPACT_BELOW) is a schedule, not an estimator: with the same seed it gives
-    the same image (to float rounding) and traces the same rays as masked full-width
-    kernels."""
-    import bdpt_drjit.compact as compact
-    import bdpt_drjit.walk as walk
-    gathers = []
-    real_gather = walk.gather_vertex
-    counting = lambda *a: gathers.append(1) or real_gather(*a)        # noqa: E731
-    monkeypatch.setattr(walk, "gather_vertex", counting)
-    monkeypatch.setattr(compact, "gather_vertex", counting)
-    monkeypatch.setattr(compact, "MIN_LANES", 0)                    # this box has 2048 lanes
-    out = {}
-    for below in (0.0, 0.25):
-        monkeypatch.setattr(compact, "COMPACT_BELOW", below)
-        out[below] = bdpt_drjit.render(box, spp=8, seed=11, **settings)
-        assert bool(gathers) == (below > 0)                 # it did compact
-    a, b = out[0.0], out[0.25]
-    assert a.rays == b.rays
-    assert np.all(np.isfinite(b.image))
-    scale = max(float(np.abs(a.image).max()), 1e-6)
-    assert np.abs(a.image - b.image).max() <= 1e-5 * scale
