@@ -568,7 +568,7 @@ def results_md(res: dict, cfg: Config, chart_rel: str) -> str:
               "extrapolated (at most %gx beyond the measured range, else n/a)."
               % (xname, C.MAX_EXTRAPOLATION))
             w("")
-            w("| scene | %s (x) |" % xname + " | ".join(methods) + " |")
+            w("| scene | %s (x) | " % xname + " | ".join(methods) + " |")
             w("|---|---|" + "---|" * len(methods))
             for s in scenes:
                 eq = s.get(key)
