@@ -17,7 +17,7 @@ Compile time: the first render in this process may load kernels from Dr.Jit's di
 cache; the cold compile is measured in a subprocess whose HOME (and so kernel cache)
 is an empty temporary folder.
 
-``--probe METHOD`` renders once with one method and prints one JSON line; run.py uses
+``--probe METHOD`` renders once with one method and prints one JSON line; suite.py uses
 it in subprocesses to get each resolution's own peak RSS, and with an empty kernel
 cache (HOME pointed at a temporary folder) to time a cold compile.
 """

@@ -1,14 +1,15 @@
 """Statistical agreement with Mitsuba's own integrators.
 
 Every comparison pools pixels into blocks and runs a z-test whose variance comes
-from independent seeds of both renderers (conftest.assert_statistically_equal).
+from independent seeds of both renderers (stats.assert_statistically_equal).
 """
 import numpy as np
 import pytest
 
 import mitsuba as mi
 import bdpt_drjit
-from conftest import assert_statistically_equal, mitsuba_render, scene_path, specular_pixels
+from conftest import mitsuba_render, scene_path, specular_pixels
+from stats import assert_statistically_equal
 
 SEEDS = 10
 

@@ -18,7 +18,8 @@ import pytest
 
 import mitsuba as mi
 import bdpt_drjit
-from conftest import assert_statistically_equal, mitsuba_render
+from conftest import mitsuba_render
+from stats import assert_statistically_equal
 
 T = mi.ScalarTransform4f
 L, ALBEDO = 1.0, 0.5

@@ -4,7 +4,7 @@ environment-map sky, with normal and bump maps and textures (max_depth 2); mirro
 spheres reflecting each other under an environment map (max_depth 8); a textured spot
 light; a sphere under a directional light.  The references are Mitsuba's path tracer at 32000 samples per pixel, written
 by another Mitsuba version; BDPT must agree with them statistically (block means,
-t-test over seeds, ``conftest.assert_matches_reference``).  The scene with a
+t-test over seeds, ``stats.assert_matches_reference``).  The scene with a
 projector, which bdpt does not support, must raise an error naming the plugin.
 """
 from pathlib import Path
@@ -15,7 +15,8 @@ import pytest
 import drjit as dr
 import mitsuba as mi
 import bdpt_drjit
-from conftest import assert_matches_reference, external
+from conftest import external
+from stats import assert_matches_reference
 
 TESTS = Path("mitsuba-tests", "tests", "scenes")
 BSDF_SPHERES = ["arealight", "bumpmap", "constant", "envmap", "normalmap",

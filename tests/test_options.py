@@ -7,12 +7,8 @@ import pytest
 import drjit as dr
 import mitsuba as mi
 import bdpt_drjit
-from conftest import assert_statistically_equal, mitsuba_render, scene_path
-
-
-@pytest.fixture(scope="module")
-def box():
-    return mi.load_file(scene_path("cornell-box.xml"), resx=16, resy=16)
+from conftest import mitsuba_render, scene_path
+from stats import assert_statistically_equal
 
 
 def test_three_routes_give_the_same_image(box):

@@ -10,7 +10,7 @@ SEEDS seeds.  For every case and seed:
       equal image (different random numbers, the same estimator);
   test_reference
       where a reference exists -- analytic, or Mitsuba's ``path`` / ``ptracer`` where
-      that converges -- agreement by conftest's Welch test on image blocks over seeds;
+      that converges -- agreement by stats.py's Welch test on image blocks over seeds;
   test_fireflies
       the largest pixel of one low-spp render (the case's spp, one seed) stays within
       FIREFLY[case] times the largest pixel of the converged image (the mean of all
@@ -66,7 +66,8 @@ import pytest
 
 import mitsuba as mi
 import bdpt_drjit
-from conftest import assert_statistically_equal, scene_path
+from conftest import scene_path
+from stats import assert_statistically_equal
 
 STRESS = Path(scene_path("stress"))
 SEEDS = 8                  # per side of every statistical comparison
