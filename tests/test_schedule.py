@@ -4,17 +4,10 @@ with Dr.Jit's evaluated loops (one kernel per depth, a wavefront), and both trac
 same rays.  This catches loop state that a symbolic loop would not carry over from
 one depth to the next."""
 import drjit as dr
-import mitsuba as mi
 import numpy as np
 import pytest
 
 import bdpt_drjit
-from conftest import scene_path
-
-
-@pytest.fixture(scope="module")
-def box():
-    return mi.load_file(scene_path("cornell-box.xml"), resx=16, resy=16)
 
 
 @pytest.mark.parametrize("settings", [dict(max_depth=8), dict(max_depth=-1),
