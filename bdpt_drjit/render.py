@@ -1,7 +1,7 @@
 """The renderer: passes, each a list of named stages.
 
     for each pass:
-        camera rays        camera.sample_camera_rays     one lane per pixel sample
+        camera rays        camera.Camera.sample_rays     one lane per pixel sample
         light subpaths     walk.trace_light_subpaths     y_i stored for connections,
                                                          t = 1 splats (splat.py)
         camera subpaths    walk.trace_camera_subpaths    s = 0, s = 1 and s, t >= 2
@@ -47,7 +47,7 @@ _SPLATS_PER_LANE = 5
 class PassContext:
     """What the stages of one pass share; the walks only read it."""
     scene: mi.Scene
-    sensor: mi.Sensor
+    camera: camera_stage.Camera
     settings: Settings
     strategies: StrategySet
     weights: Weights
@@ -150,6 +150,7 @@ class Renderer:
                  strategy_images: bool = False, **settings):
         check_variant()
         self.sensor = camera_stage.select_sensor(scene, sensor)
+        self.camera = camera_stage.Camera(self.sensor)
         self.scene = scene
         self.settings = Settings.from_dict(settings)
         self.emitters = Emitters(scene)
@@ -214,7 +215,7 @@ class Renderer:
     def _context(self, rays, sampler, lanes: int, spp: int) -> PassContext:
         images = StrategyImages(self.strategies, lanes) if self.strategy_images else None
         return PassContext(
-            scene=self.scene, sensor=self.sensor, settings=self.settings,
+            scene=self.scene, camera=self.camera, settings=self.settings,
             strategies=self.strategies, weights=self.weights, emitters=self.emitters,
             camera_sampler=sampler, light_sampler=self._sampler(1, lanes, spp),
             lane=dr.arange(mi.UInt32, lanes), time=rays.ray.time,
@@ -224,7 +225,7 @@ class Renderer:
     def _render_pass(self, pixel_offset, n_pixels, spp, lanes):
         # Stage 1: camera rays.
         sampler = self._sampler(0, lanes, spp)
-        rays = camera_stage.sample_camera_rays(self.sensor, sampler, pixel_offset, n_pixels, spp)
+        rays = self.camera.sample_rays(sampler, pixel_offset, n_pixels, spp)
         sampler.schedule_state()
         dr.eval(rays)
         ctx = self._context(rays, sampler, lanes, spp)

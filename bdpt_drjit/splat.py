@@ -1,7 +1,7 @@
 """The light image: strategies with t = 1, connecting a light vertex to the camera.
 
 A light vertex y_{s-1} (or the emitter point y_0 for (1,1)) is connected to the
-camera through ``sensor.sample_direction``, which gives the film position it
+camera through ``camera.Camera.connect``, which gives the film position it
 projects to and the sensor's importance.  Visible, nonzero contributions are
 appended to the pass's splat pool (vertices.Splat) and put on the film's light
 block after the walks (film.py), normalized like Mitsuba's ``ptracer``: by the
@@ -20,19 +20,19 @@ from .vertices import Splat
 
 def light_vertex_to_camera(ctx, store, si, bsdf, vertex, sample, active) -> mi.UInt32:
     """t = 1, s = i + 1: light vertex y_i seen by the camera."""
-    ds, importance = ctx.sensor.sample_direction(si, sample, active)
-    active = active & (ds.pdf > 0)
-    _, cos_out, ok = geometric_cosines(si, ds.d)
-    active = active & ok
-    f, rev_w = eval_adjoint(bsdf, si, si.to_local(ds.d), active)
-    contrib = vertex.beta * f * importance * ctx.camera_weight
+    cam = ctx.camera.connect(si.p, active)
+    _, cos_out, ok = geometric_cosines(si, cam.d)
+    active = cam.valid & ok
+    f, rev_w = eval_adjoint(bsdf, si, si.to_local(cam.d), active)
+    contrib = vertex.beta * f * cam.importance * ctx.camera_weight
     traced = active & spectrum_nonzero(contrib)
-    active = traced & ~ctx.scene.ray_test(si.spawn_ray_to(ds.p), traced)
+    active = traced & ~ctx.scene.ray_test(si.spawn_ray_to(cam.p), traced)
     # importance = pdf_w(camera) / d^2, so the camera's area density at y_i is
     # importance * cos (tech. rep. eq. 46; scaled by N_C / N_L).
-    cam_pdf_a = mi.unpolarized_spectrum(importance)[0] * cos_out / ctx.light_ratio
+    cam_pdf_a = cam.importance * cos_out / ctx.light_ratio
     contrib *= ctx.weights.light_to_camera(vertex.d_vcm, vertex.d_vc, cam_pdf_a, rev_w)
-    store.splats.append(Splat(pos=ds.uv, value=mi.Spectrum(finite(contrib)), s=vertex.s, lane=ctx.lane), active)
+    store.splats.append(Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=vertex.s,
+                              lane=ctx.lane), active)
     return dr.select(traced, 1, 0)
 
 
@@ -46,16 +46,16 @@ def emitter_to_camera(ctx, store, es, sample, active) -> mi.UInt32:
     active = active & ~es.delta_pos & ~es.infinite
     it = dr.zeros(mi.Interaction3f)
     it.p, it.n, it.time, it.wavelengths = es.p, es.n, ctx.time, ctx.wavelengths
-    ds, importance = ctx.sensor.sample_direction(it, sample, active)
-    active = active & (ds.pdf > 0)
-    le = ctx.emitters.emitted(es.emitter, es.p, es.n, es.uv, ds.d, mi.Bool(False),
+    cam = ctx.camera.connect(es.p, active)
+    active = cam.valid
+    le = ctx.emitters.emitted(es.emitter, es.p, es.n, es.uv, cam.d, mi.Bool(False),
                               ctx.wavelengths, ctx.time, active)
-    cos_e = dr.abs(dr.dot(es.n, ds.d))
-    contrib = le * cos_e / es.pos_pdf_a * importance * ctx.camera_weight
+    cos_e = dr.abs(dr.dot(es.n, cam.d))
+    contrib = le * cos_e / es.pos_pdf_a * cam.importance * ctx.camera_weight
     traced = active & spectrum_nonzero(contrib)
-    active = traced & ~ctx.scene.ray_test(it.spawn_ray_to(ds.p), traced)
-    cam_pdf_a = mi.unpolarized_spectrum(importance)[0] * cos_e / ctx.light_ratio
+    active = traced & ~ctx.scene.ray_test(it.spawn_ray_to(cam.p), traced)
+    cam_pdf_a = cam.importance * cos_e / ctx.light_ratio
     contrib *= ctx.weights.emitter_to_camera(cam_pdf_a, es.pos_pdf_a)
-    store.splats.append(Splat(pos=ds.uv, value=mi.Spectrum(finite(contrib)), s=mi.UInt32(1), lane=ctx.lane),
-                        active)
+    store.splats.append(Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=mi.UInt32(1),
+                              lane=ctx.lane), active)
     return dr.select(traced, 1, 0)

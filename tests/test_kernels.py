@@ -1,0 +1,50 @@
+"""Kernels are reused: a render with a new seed compiles nothing that an earlier
+render compiled; a new spp or film size recompiles no walk (the small kernels of
+Mitsuba's ``ImageBlock.put`` and ``sample_ray`` bake the film size, as in Mitsuba's
+own ``path``).  Counted with Dr.Jit's kernel history, not timed."""
+import drjit as dr
+import mitsuba as mi
+import pytest
+
+import bdpt_drjit
+from conftest import scene_path
+
+# The largest kernel that may be compiled for a new film size or spp: the camera
+# rays (~310 operations) and the film's puts (~30); the walks have 700-2100.
+SMALL = 400
+
+
+def launches(render):
+    dr.kernel_history()
+    render()
+    return [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
+
+
+def compiled(entries):
+    """Kernels not found in memory (compiled now, or loaded from the disk cache)."""
+    return [e for e in entries if not e.get("cache_hit", 1) or e.get("cache_disk", 0)]
+
+
+@pytest.fixture(autouse=True)
+def history():
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        yield
+
+
+@pytest.mark.parametrize("max_depth", [8, -1])
+def test_new_seed_compiles_nothing(max_depth):
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=24, resy=24)
+    launches(lambda: bdpt_drjit.render(scene, spp=4, seed=1, max_depth=max_depth))
+    for seed in (2, 3, 12345):
+        again = launches(lambda: bdpt_drjit.render(scene, spp=4, seed=seed, max_depth=max_depth))
+        assert again and not compiled(again), "seed %d compiled %d kernels" % (seed, len(compiled(again)))
+
+
+def test_new_spp_and_film_size_recompile_no_walk():
+    small = mi.load_file(scene_path("cornell-box.xml"), resx=24, resy=24)
+    other = mi.load_file(scene_path("cornell-box.xml"), resx=40, resy=30)
+    launches(lambda: bdpt_drjit.render(small, spp=4, seed=1, max_depth=-1))
+    for render in (lambda: bdpt_drjit.render(small, spp=7, seed=2, max_depth=-1),
+                   lambda: bdpt_drjit.render(other, spp=4, seed=3, max_depth=-1)):
+        big = [e for e in compiled(launches(render)) if e.get("operation_count", 0) > SMALL]
+        assert not big, ["%d ops" % e["operation_count"] for e in big]
