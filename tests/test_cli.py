@@ -35,11 +35,19 @@ SCENES = {
 }
 
 
-def run_cli(*args, cwd=None, env=None, timeout=180):
+def cli_env(env=None) -> dict:
+    """The environment of a CLI subprocess: it imports bdpt_drjit from this checkout
+    (not an installed copy, which a subprocess run elsewhere would find)."""
     full_env = dict(os.environ)
+    full_env["PYTHONPATH"] = os.pathsep.join(
+        [str(ROOT)] + [p for p in [os.environ.get("PYTHONPATH")] if p])
     full_env.update(env or {})
+    return full_env
+
+
+def run_cli(*args, cwd=None, env=None, timeout=180):
     return subprocess.run([sys.executable, "-m", "bdpt_drjit", *map(str, args)], cwd=cwd,
-                          env=full_env, capture_output=True, text=True, timeout=timeout)
+                          env=cli_env(env), capture_output=True, text=True, timeout=timeout)
 
 
 def ok(p):
@@ -138,7 +146,8 @@ def test_signal_stops_after_current_pass(tmp_path, sig):
     proc = subprocess.Popen([sys.executable, "-m", "bdpt_drjit", "render", CORNELL, *TINY,
                              "--spp", str(spp), "--samples-per-pass", str(per_pass),
                              "--max-depth", "3", "-o", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=cli_env())
     lines = []
     try:
         for line in proc.stderr:
@@ -335,9 +344,10 @@ def test_console_script_and_help():
     exe = shutil.which("bdpt")
     if exe is None:
         pytest.skip("the bdpt console script is not installed (pip install -e .)")
-    p = subprocess.run([exe, "render", "--help"], capture_output=True, text=True, timeout=60)
+    p = subprocess.run([exe, "render", "--help"], capture_output=True, text=True, timeout=60,
+                       env=cli_env())
     assert p.returncode == 0 and "--spp" in p.stdout and "--strategies" in p.stdout
-    p = subprocess.run([exe], capture_output=True, text=True, timeout=60)
+    p = subprocess.run([exe], capture_output=True, text=True, timeout=60, env=cli_env())
     assert p.returncode != 0 and "Traceback" not in p.stderr
 
 
