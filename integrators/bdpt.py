@@ -47,6 +47,16 @@ def _settings_from(props: mi.Properties) -> dict:
     return settings
 
 
+def seed_value(seed) -> int:
+    """``seed`` as a Python int: Mitsuba passes an ``int`` or a ``mi.UInt32`` of size 1."""
+    if dr.is_array_v(seed):
+        if dr.width(seed) != 1:
+            raise ValueError("bdpt: seed must be a single value, got an array of %d"
+                             % dr.width(seed))
+        return int(seed[0])
+    return int(seed)
+
+
 class BDPTIntegrator(mi.SamplingIntegrator):
     __doc__ = __doc__
 
@@ -55,13 +65,13 @@ class BDPTIntegrator(mi.SamplingIntegrator):
         self.settings = _settings_from(props)
         Settings(**self.settings)          # fail at load time on bad values
 
-    def render(self, scene: mi.Scene, sensor=0, seed: int = 0, spp: int = 0,
+    def render(self, scene: mi.Scene, sensor=0, seed=0, spp: int = 0,
                develop: bool = True, evaluate: bool = True) -> mi.TensorXf:
         from bdpt_drjit.render import render
         if not develop:
             raise ValueError("bdpt: develop=False is not supported")
         with dr.suspend_grad():
-            return render(scene, spp=spp or None, seed=int(seed), sensor=sensor,
+            return render(scene, spp=spp or None, seed=seed_value(seed), sensor=sensor,
                           **self.settings).tensor
 
     def aov_names(self):

@@ -84,6 +84,19 @@ def test_bad_settings(box):
         mi.load_dict({"type": "bdpt", "maxdepth": 3})
 
 
+# -- a good Mitsuba citizen --------------------------------------------------------------
+def test_seed_as_mitsuba_passes_it(box):
+    """mi.render types seed as mi.UInt32 (Mitsuba's path accepts one); a Dr.Jit array
+    of size 1 and a plain int give the same image."""
+    integ = mi.load_dict({"type": "bdpt", "max_depth": 3})
+    ref = np.array(mi.render(box, integrator=integ, spp=2, seed=3))
+    for seed in (mi.UInt32(3), dr.llvm.UInt32(3), np.uint32(3)):
+        img = np.array(mi.render(box, integrator=integ, spp=2, seed=seed))
+        np.testing.assert_allclose(img, ref, rtol=1e-5, atol=1e-7, err_msg=repr(type(seed)))
+    with pytest.raises(ValueError, match="single value"):
+        integ.render(box, box.sensors()[0], seed=mi.UInt32([1, 2]), spp=1)
+
+
 def _scene(emitter=None, sensor="perspective"):
     d = {"type": "scene",
          "floor": {"type": "rectangle", "bsdf": {"type": "diffuse"}},
