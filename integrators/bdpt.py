@@ -36,6 +36,11 @@ from bdpt_drjit.settings import PARAM, Settings, canonical_name, rst_table  # no
 
 __doc__ = __doc__.replace("{params}", rst_table())
 
+NESTING_ERROR = ("bdpt: cannot be nested in another integrator (such as 'aov' or 'moment'): "
+                 "it traces wavefronts of whole subpaths and splats light paths onto the "
+                 "film, so it cannot evaluate one camera ray at a time; render with bdpt "
+                 "directly")
+
 
 def _settings_from(props: mi.Properties) -> dict:
     """The plugin's properties as settings (current, renamed or Mitsuba 0.5 names)."""
@@ -73,6 +78,10 @@ class BDPTIntegrator(mi.SamplingIntegrator):
         with dr.suspend_grad():
             return render(scene, spp=spp or None, seed=seed_value(seed), sensor=sensor,
                           **self.settings).tensor
+
+    def sample(self, *args, **kwargs):
+        # What integrators that nest another ('aov', 'moment') call per camera ray.
+        raise NotImplementedError(NESTING_ERROR)
 
     def aov_names(self):
         return []

@@ -97,6 +97,22 @@ def test_seed_as_mitsuba_passes_it(box):
         integ.render(box, box.sensors()[0], seed=mi.UInt32([1, 2]), spp=1)
 
 
+@pytest.mark.parametrize("nesting", [{"type": "aov", "aovs": "dd.y:depth", "img": {"type": "bdpt"}},
+                                     {"type": "moment", "nested": {"type": "bdpt"}}],
+                         ids=["aov", "moment"])
+def test_nesting_is_refused_in_one_sentence(box, nesting):
+    """aov and moment evaluate their nested integrator one camera ray at a time
+    (``sample``), which BDPT cannot do: the error says so, first."""
+    integ = mi.load_dict(nesting)
+    with pytest.raises(NotImplementedError) as e:
+        integ.render(box, box.sensors()[0], seed=0, spp=1)
+    assert str(e.value).startswith("bdpt: cannot be nested in another integrator")
+    # mi.render wraps every integrator error (Dr.Jit's custom op); ours is the cause.
+    with pytest.raises(RuntimeError) as e:
+        mi.render(box, integrator=integ, spp=1)
+    assert isinstance(e.value.__cause__ or e.value.__context__, NotImplementedError)
+
+
 def _scene(emitter=None, sensor="perspective"):
     d = {"type": "scene",
          "floor": {"type": "rectangle", "bsdf": {"type": "diffuse"}},
