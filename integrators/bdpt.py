@@ -40,6 +40,8 @@ NESTING_ERROR = ("bdpt: cannot be nested in another integrator (such as 'aov' or
                  "it traces wavefronts of whole subpaths and splats light paths onto the "
                  "film, so it cannot evaluate one camera ray at a time; render with bdpt "
                  "directly")
+GRADIENT_ERROR = ("bdpt: gradients are not supported (render_%s): bdpt renders images "
+                  "only; differentiate with Mitsuba's 'prb' or 'direct_projective' integrators")
 
 
 def _settings_from(props: mi.Properties) -> dict:
@@ -82,6 +84,12 @@ class BDPTIntegrator(mi.SamplingIntegrator):
     def sample(self, *args, **kwargs):
         # What integrators that nest another ('aov', 'moment') call per camera ray.
         raise NotImplementedError(NESTING_ERROR)
+
+    def render_forward(self, *args, **kwargs):
+        raise NotImplementedError(GRADIENT_ERROR % "forward")
+
+    def render_backward(self, *args, **kwargs):
+        raise NotImplementedError(GRADIENT_ERROR % "backward")
 
     def aov_names(self):
         return []

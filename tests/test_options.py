@@ -113,6 +113,26 @@ def test_nesting_is_refused_in_one_sentence(box, nesting):
     assert isinstance(e.value.__cause__ or e.value.__context__, NotImplementedError)
 
 
+def test_gradients_are_refused_clearly():
+    """Until gradients are supported: dr.backward / dr.forward through a bdpt render
+    raise NotImplementedError saying so, and bdpt's own images are not attached."""
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=8, resy=8)
+    params = mi.traverse(scene)
+    key = next(k for k in params.keys() if k.endswith("reflectance.value"))
+    dr.enable_grad(params[key])
+    params.update()
+    integ = mi.load_dict({"type": "bdpt", "max_depth": 2})
+    assert not dr.grad_enabled(integ.render(scene, scene.sensors()[0], seed=0, spp=1))
+    assert not dr.grad_enabled(bdpt_drjit.render(scene, spp=1, max_depth=2).tensor)
+    img = mi.render(scene, params=params, integrator=integ, spp=1)
+    with pytest.raises(NotImplementedError, match="bdpt: gradients are not supported"):
+        dr.backward(img)
+    img = mi.render(scene, params=params, integrator=integ, spp=1)
+    dr.set_grad(params[key], 1.0)
+    with pytest.raises(NotImplementedError, match="bdpt: gradients are not supported"):
+        dr.forward(params[key])
+
+
 def _scene(emitter=None, sensor="perspective"):
     d = {"type": "scene",
          "floor": {"type": "rectangle", "bsdf": {"type": "diffuse"}},
