@@ -33,15 +33,20 @@ __version__ = "0.1.0"
 
 
 def register() -> None:
-    """Register the ``bdpt`` integrator with Mitsuba for the current variant
-    (done on import; call again after ``mi.set_variant``)."""
+    """Register the ``bdpt`` integrator with Mitsuba for the current variant (done
+    on import and, through Mitsuba's variant callback, after every ``mi.set_variant``)."""
     if mi.variant() is None:
         return
     from integrators.bdpt import register as _register
     _register()
 
 
+def _on_variant_change(old, new) -> None:
+    register()
+
+
 register()
+mi.detail.add_variant_callback(_on_variant_change)
 
 __all__ = ["render", "Renderer", "RenderResult", "Settings", "register",
            "UnsupportedPluginError", "HEURISTICS", "PARAMS", "read_exr", "write_exr"]

@@ -133,6 +133,32 @@ def test_gradients_are_refused_clearly():
         dr.forward(params[key])
 
 
+_SWITCH_VARIANT = r"""
+import sys, mitsuba as mi
+mi.set_variant("llvm_ad_rgb")
+import bdpt_drjit
+for variant in ("llvm_ad_mono", "llvm_ad_rgb"):
+    mi.set_variant(variant)
+    scene = mi.load_file(sys.argv[1], resx=8, resy=8)
+    img = mi.render(scene, integrator=mi.load_dict({"type": "bdpt", "max_depth": 2}), spp=2)
+    print(variant, img.shape)
+"""
+
+
+def test_variant_switch_after_import():
+    """"bdpt" follows mi.set_variant (a variant callback), with a plugin class of the
+    variant's own (mi.render asserts that the integrator is one of its variant)."""
+    import os
+    import subprocess
+    import sys
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]))
+    p = subprocess.run([sys.executable, "-c", _SWITCH_VARIANT, scene_path("cornell-box.xml")],
+                       capture_output=True, text=True, timeout=300, env=env)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "llvm_ad_mono (8, 8, 1)" in p.stdout and "llvm_ad_rgb (8, 8, 3)" in p.stdout
+
+
 def _scene(emitter=None, sensor="perspective"):
     d = {"type": "scene",
          "floor": {"type": "rectangle", "bsdf": {"type": "diffuse"}},
