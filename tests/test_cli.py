@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from bdpt_drjit.exr import read_exr, read_layers, write_exr, write_layers
+from bdpt_drjit.settings import PARAMS
 
 ROOT = Path(__file__).resolve().parent.parent
 CORNELL = str(ROOT / "scenes" / "cornell-box.xml")
@@ -86,7 +87,7 @@ def test_render_writes_exr_png_and_strategies(tmp_path):
     out = tmp_path / "out.exr"
     out.write_bytes(b"not an exr: must be overwritten")
     p = ok(run_cli("render", CORNELL, *TINY, "--spp", 8, "--seed", 5, "-o", out,
-                   "--strategies", cwd=tmp_path))
+                   "--strategy-images", cwd=tmp_path))
     img, meta = read_exr(out)
     assert img.shape == (16, 16, 3) and img.dtype == np.float32
     assert np.all(np.isfinite(img))
@@ -128,6 +129,29 @@ def test_render_settings_and_res(tmp_path):
     assert img.shape == (8, 12, 3)
     assert meta["technique"] == "1,2" and meta["mis"] == "balance" and meta["rr_depth"] == 3
     assert meta["hide_emitters"] == 1
+
+
+def test_renderer_options_come_from_params():
+    """Every integrator parameter is an option, with its choices, bounds and doc."""
+    text = " ".join(ok(run_cli("render", "--help")).stdout.split())
+    for p in PARAMS:
+        assert p.flag in text, p.flag
+        for choice in p.choices or ():
+            assert choice in text
+        assert " ".join(p.doc.replace("``", "").split()[:4]) in text, p.name
+
+
+def test_old_option_spellings_still_work_and_warn(tmp_path):
+    out = tmp_path / "old.exr"
+    p = ok(run_cli("render", CORNELL, *TINY, "--spp", 2, "--max-depth", 3, "--strategy-set",
+                   "pt", "--strategies", "-o", out))
+    warnings = [line for line in p.stderr.splitlines() if "deprecated" in line]
+    assert warnings == ["bdpt: warning: --strategy-set is deprecated; use --strategy-subset",
+                        "bdpt: warning: --strategies is deprecated; use --strategy-images"]
+    _, meta = read_exr(out)
+    assert meta["strategy_subset"] == "pt" and meta["light_image"] == 0
+    layers, _ = read_layers(tmp_path / "old.strategies.exr")
+    assert "s1t2" in layers and not [k for k in layers if k.endswith("t1")]
 
 
 def test_no_emitters_warns_and_renders_black(tmp_path):
@@ -275,6 +299,9 @@ BAD = [
     ("output parent is a file", ["render", CORNELL, *TINY, "-o", "{tmp}/scenes/ortho.xml/out.exr"],
      ["cannot write"]),
     ("info missing scene", ["info", "no-such-scene.xml"], ["not found"]),
+    ("rr_depth 0", ["render", CORNELL, *TINY, "--rr-depth", "0"], ["--rr-depth", "positive"]),
+    ("memory budget too small", ["render", CORNELL, *TINY, "--memory-budget", "1K"],
+     ["--memory-budget", "1 MiB"]),
     ("unknown command option", ["render", "--frobnicate"], ["--frobnicate"]),
 ]
 
@@ -346,7 +373,7 @@ def test_console_script_and_help():
         pytest.skip("the bdpt console script is not installed (pip install -e .)")
     p = subprocess.run([exe, "render", "--help"], capture_output=True, text=True, timeout=60,
                        env=cli_env())
-    assert p.returncode == 0 and "--spp" in p.stdout and "--strategies" in p.stdout
+    assert p.returncode == 0 and "--spp" in p.stdout and "--strategy-images" in p.stdout
     p = subprocess.run([exe], capture_output=True, text=True, timeout=60, env=cli_env())
     assert p.returncode != 0 and "Traceback" not in p.stderr
 

@@ -1,0 +1,27 @@
+"""How the command line reports problems: one line on stderr, never a traceback."""
+from __future__ import annotations
+
+import re
+import sys
+
+
+class CLIError(Exception):
+    """A problem with the user's input: reported as one line, exit status ``code``."""
+
+    def __init__(self, message: str, code: int = 1):
+        super().__init__(message)
+        self.code = code
+
+
+def eprint(*parts) -> None:
+    print(*parts, file=sys.stderr, flush=True)
+
+
+def one_line(exc_or_text) -> str:
+    """An exception's message on one line, without 'bdpt: ' or '[file.cpp:123] '."""
+    text = str(exc_or_text)
+    text = re.sub(r"\[[\w./-]+\.(?:cpp|h|py):\d+\]\s*", "", text)
+    text = re.sub(r"\s*\n\s*-?\s*", "; ", text.strip())
+    text = re.sub(r"^(bdpt:\s*)+", "", text)
+    text = re.sub(r"\s+", " ", text)
+    return text.strip("; ") or exc_or_text.__class__.__name__

@@ -1,0 +1,98 @@
+"""``bdpt info``: what the renderer sees in a scene."""
+from __future__ import annotations
+
+import warnings
+
+from .errors import CLIError, one_line
+from .scene import (integrator_defaults, load_scene, make_renderer, scene_params, scene_path,
+                    setup_variant)
+
+_BSDF_NAMES = {
+    "SmoothDiffuse": "diffuse", "TwoSidedBRDF": "twosided", "SmoothDielectric": "dielectric",
+    "ThinDielectric": "thindielectric", "RoughDielectric": "roughdielectric",
+    "SmoothConductor": "conductor", "RoughConductor": "roughconductor",
+    "SmoothPlastic": "plastic", "RoughPlastic": "roughplastic", "Principled": "principled",
+    "PrincipledThinBSDF": "principledthin", "BlendBSDF": "blendbsdf", "MaskBSDF": "mask",
+    "NullBSDF": "null", "BumpMap": "bumpmap", "NormalMap": "normalmap",
+    "HairBSDF": "hair", "Polarizer": "polarizer", "Retarder": "retarder",
+    "MeasuredBSDF": "measured", "PPLastic": "pplastic"}
+
+
+def _variant_line(mi) -> str:
+    variant = mi.variant()
+    if variant.startswith("llvm_"):
+        import drjit as dr
+        try:
+            variant += " (LLVM %s)" % ".".join(map(str, dr.detail.llvm_version()))
+        except Exception:
+            pass
+    return "variant:    %s" % variant
+
+
+def _sensor_lines(scene) -> list:
+    from ..emitters import plugin_name
+    sensors = scene.sensors()
+    if not sensors:
+        return ["sensor:     none  [refused: the scene has no sensor]"]
+    lines = []
+    for i, sensor in enumerate(sensors):
+        name = plugin_name(sensor)
+        note = "  [not rendered: bdpt renders the first sensor]" if i > 0 else ""
+        film, sampler = sensor.film(), sensor.sampler()
+        size = tuple(int(x) for x in film.size())
+        crop = tuple(int(x) for x in film.crop_size())
+        lines.append("sensor:     %s%s" % (name, note))
+        lines.append("film:       %s %dx%d%s, %s filter" % (
+            film.class_name(), size[0], size[1],
+            "" if crop == size else " (crop %dx%d)" % crop, film.rfilter().class_name()))
+        lines.append("sampler:    %s, %d spp" % (sampler.class_name(), sampler.sample_count()))
+    return lines
+
+
+def _content_lines(scene) -> list:
+    from ..emitters import plugin_name
+    emitters = scene.emitters()
+    lines = ["emitters:   none  [warning: the image will be black]"] if not emitters else []
+    lines += ["emitter:    %s" % plugin_name(e) for e in emitters]
+    bsdfs, kinds = set(), {}
+    for shape in scene.shapes():
+        kinds[shape.class_name()] = kinds.get(shape.class_name(), 0) + 1
+        b = shape.bsdf()
+        if b is not None:
+            ident = b.id()
+            bsdfs.add((_BSDF_NAMES.get(b.class_name(), b.class_name()),
+                       ident if ident and not ident.startswith("_unnamed") else ""))
+    lines.append("bsdfs:      %s" % (", ".join(
+        label + (" '%s'" % ident if ident else "") for label, ident in sorted(bsdfs)) or "none"))
+    lines.append("shapes:     %d (%s)" % (sum(kinds.values()), ", ".join(
+        "%s x%d" % kv for kv in sorted(kinds.items()))))
+    return lines
+
+
+def _verdict(scene, settings: dict) -> str:
+    """The definitive answer: what constructing the renderer says."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            make_renderer(scene, None, 0, False, settings)
+        except CLIError as e:
+            return "status:     REFUSED: %s" % e
+    extra = "".join("; warning: %s" % one_line(w.message) for w in caught)
+    return "status:     supported: 'bdpt render' will render it%s" % extra
+
+
+def run(args) -> int:
+    path = scene_path(args.scene)
+    mi = setup_variant(args.variant)
+    params = scene_params(args)
+    scene = load_scene(mi, path, params)
+    lines = ["scene:      %s%s" % (path, (" (%s)" % ", ".join(
+        "%s=%s" % kv for kv in sorted(params.items()))) if params else ""), _variant_line(mi)]
+    lines += _sensor_lines(scene) + _content_lines(scene)
+    settings, integrator_name = integrator_defaults(scene)
+    lines.append("integrator: %s in the file (bdpt renders instead%s)" % (
+        integrator_name, ", with " + ", ".join("%s=%s" % kv for kv in sorted(settings.items()))
+        if settings else ""))
+    lines.append(_verdict(scene, settings))
+    print("\n".join(lines), flush=True)
+    return 0
