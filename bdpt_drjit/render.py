@@ -147,11 +147,15 @@ class Renderer:
     def __init__(self, scene: mi.Scene, sensor=0, spp: int | None = None, seed: int = 0,
                  strategy_images: bool = False, **settings):
         check_variant()
-        if isinstance(sensor, int):
+        if isinstance(sensor, (int, np.integer)):
             sensors = scene.sensors()
             if not sensors:
                 raise ValueError("bdpt: the scene has no sensor")
-            sensor = sensors[sensor]
+            if not 0 <= sensor < len(sensors):
+                raise ValueError("bdpt: sensor index %d is out of range: the scene has %d "
+                                 "sensor%s (indices 0 to %d)" % (sensor, len(sensors),
+                                 "" if len(sensors) == 1 else "s", len(sensors) - 1))
+            sensor = sensors[int(sensor)]
         camera_stage.check_sensor(sensor)
         self.scene, self.sensor = scene, sensor
         self.settings = Settings.from_dict(settings)

@@ -33,6 +33,9 @@ SCENES = {
                     '</shape></scene>',
     "malformed.xml": '<scene version="3.0.0"><shape type="sphere"></scene>',
     "unknown-plugin.xml": '<scene version="3.0.0"><shape type="spherez"/></scene>',
+    "bad-bdpt.xml": '<scene version="3.0.0"><integrator type="bdpt"><string name="mis" '
+                    'value="nope"/></integrator>%s<shape type="sphere"><emitter type="area"/>'
+                    '</shape></scene>' % (_SENSOR % "perspective"),
 }
 
 
@@ -299,6 +302,8 @@ BAD = [
     ("output parent is a file", ["render", CORNELL, *TINY, "-o", "{tmp}/scenes/ortho.xml/out.exr"],
      ["cannot write"]),
     ("info missing scene", ["info", "no-such-scene.xml"], ["not found"]),
+    ("bad bdpt parameter in the scene", ["render", "{scenes}/bad-bdpt.xml"],
+     ["bad-bdpt.xml", "heuristic 'nope'", "choose one of"]),
     ("rr_depth 0", ["render", CORNELL, *TINY, "--rr-depth", "0"], ["--rr-depth", "positive"]),
     ("memory budget too small", ["render", CORNELL, *TINY, "--memory-budget", "1K"],
      ["--memory-budget", "1 MiB"]),

@@ -159,6 +159,23 @@ def test_variant_switch_after_import():
     assert "llvm_ad_mono (8, 8, 1)" in p.stdout and "llvm_ad_rgb (8, 8, 3)" in p.stdout
 
 
+def test_sensor_index_out_of_range(box):
+    with pytest.raises(ValueError, match=r"sensor index 1 is out of range: the scene has 1 sensor"):
+        bdpt_drjit.render(box, spp=1, sensor=1)
+
+
+def test_load_errors_name_the_cause():
+    """Mitsuba wraps an exception raised by a Python plugin's constructor: its own
+    location, then the Python traceback, then the exception.  Ours is one line that
+    starts with the cause."""
+    with pytest.raises(RuntimeError) as e:
+        mi.load_dict({"type": "bdpt", "mis": "nope"})
+    text = str(e.value)
+    assert text.splitlines()[0].endswith("Traceback (most recent call last):")  # Mitsuba's
+    assert text.splitlines()[-1] == ("ValueError: bdpt: unknown heuristic 'nope' for mis "
+                                     "(choose one of power, balance, uniform, lafortune)")
+
+
 def _scene(emitter=None, sensor="perspective"):
     d = {"type": "scene",
          "floor": {"type": "rectangle", "bsdf": {"type": "diffuse"}},

@@ -17,11 +17,22 @@ def eprint(*parts) -> None:
     print(*parts, file=sys.stderr, flush=True)
 
 
+def python_cause(text: str) -> str:
+    """The Python exception inside a Mitsuba message: Mitsuba wraps an error raised
+    by a Python plugin (such as bdpt's constructor) as '<where>: Traceback (most
+    recent call last): <frames> <Type>: <message>'; keep '<where>: <message>'."""
+    head, sep, tail = text.partition("Traceback (most recent call last):")
+    if not sep:
+        return text
+    last = [line for line in tail.strip().splitlines() if line.strip()][-1]
+    return head.strip() + " " + re.sub(r"^[\w.]+(Error|Exception|Warning): ", "", last.strip())
+
+
 def one_line(exc_or_text) -> str:
     """An exception's message on one line, without 'bdpt: ' or '[file.cpp:123] '."""
-    text = str(exc_or_text)
+    text = python_cause(str(exc_or_text))
     text = re.sub(r"\[[\w./-]+\.(?:cpp|h|py):\d+\]\s*", "", text)
     text = re.sub(r"\s*\n\s*-?\s*", "; ", text.strip())
-    text = re.sub(r"^(bdpt:\s*)+", "", text)
+    text = re.sub(r"(^|: )(bdpt:\s*)+", r"\1", text)
     text = re.sub(r"\s+", " ", text)
     return text.strip("; ") or exc_or_text.__class__.__name__
