@@ -36,6 +36,9 @@ SCENES = {
     "bad-bdpt.xml": '<scene version="3.0.0"><integrator type="bdpt"><string name="mis" '
                     'value="nope"/></integrator>%s<shape type="sphere"><emitter type="area"/>'
                     '</shape></scene>' % (_SENSOR % "perspective"),
+    "two-sensors.xml": '<scene version="3.0.0">%s%s<shape type="sphere"><emitter type="area"/>'
+                       '</shape></scene>' % (_SENSOR % "perspective", (_SENSOR % "perspective")
+                                             .replace('"8"/>', '"12"/>', 1)),
 }
 
 
@@ -155,6 +158,16 @@ def test_old_option_spellings_still_work_and_warn(tmp_path):
     assert meta["strategy_subset"] == "pt" and meta["light_image"] == 0
     layers, _ = read_layers(tmp_path / "old.strategies.exr")
     assert "s1t2" in layers and not [k for k in layers if k.endswith("t1")]
+
+
+def test_sensor_option(tmp_path, scenes):
+    """--sensor N renders the scene's N-th sensor (here 12x8; the first is 8x8)."""
+    out = tmp_path / "s1.exr"
+    ok(run_cli("render", scenes / "two-sensors.xml", "--spp", 1, "--sensor", 1, "-o", out))
+    img, meta = read_exr(out)
+    assert img.shape == (8, 12, 3) and meta["sensor"] == 1
+    p = ok(run_cli("info", scenes / "two-sensors.xml", "--sensor", 1))
+    assert "[1: rendered]" in p.stdout and "[0; --sensor 0 renders it]" in p.stdout
 
 
 def test_no_emitters_warns_and_renders_black(tmp_path):
@@ -307,6 +320,10 @@ BAD = [
     ("rr_depth 0", ["render", CORNELL, *TINY, "--rr-depth", "0"], ["--rr-depth", "positive"]),
     ("memory budget too small", ["render", CORNELL, *TINY, "--memory-budget", "1K"],
      ["--memory-budget", "1 MiB"]),
+    ("sensor out of range", ["render", CORNELL, *TINY, "--sensor", "1"],
+     ["--sensor 1", "1 sensor"]),
+    ("info sensor out of range", ["info", "{scenes}/two-sensors.xml", "--sensor", "2"],
+     ["--sensor 2", "2 sensors"]),
     ("unknown command option", ["render", "--frobnicate"], ["--frobnicate"]),
 ]
 

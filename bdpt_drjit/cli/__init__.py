@@ -1,10 +1,10 @@
 """The ``bdpt`` command line: render, merge and inspect scenes.
 
     bdpt render [SCENE.xml] [-o out.exr] [--spp N] [--seed N] [--time SECONDS]
-                [--checkpoint SECONDS] [--res WxH] [-D key=value ...]
+                [--checkpoint SECONDS] [--res WxH] [-D key=value ...] [--sensor N]
                 [--variant llvm_ad_rgb] [renderer settings] [--strategy-images] [--quiet]
     bdpt merge a.exr b.exr ... -o out.exr
-    bdpt info [SCENE.xml] [-D key=value ...]
+    bdpt info [SCENE.xml] [-D key=value ...] [--sensor N]
 
 The renderer settings are the integrator's parameters (``bdpt_drjit.settings.PARAMS``)
 as options: ``--max-depth N``, ``--mis power``, ``--strategy-subset pt``,

@@ -145,6 +145,8 @@ def add_scene_options(p) -> None:
                    help="set a scene parameter ($KEY in the XML), e.g. -D resx=64; repeatable")
     p.add_argument("--res", type=_resolution, metavar="WxH",
                    help="film size: sets the scene parameters resx and resy")
+    p.add_argument("--sensor", type=int_at_least(0), default=0, metavar="N",
+                   help="which of the scene's sensors to render (default 0, the first)")
     p.add_argument("--variant", default=DEFAULT_VARIANT,
                    help="Mitsuba variant (a JIT one: llvm_* or cuda_*; default %(default)s)")
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 import warnings
 
 from .errors import CLIError, one_line
-from .scene import (integrator_defaults, load_scene, make_renderer, scene_params, scene_path,
-                    setup_variant)
+from .scene import (check_sensor_index, integrator_defaults, load_scene, make_renderer,
+                    scene_params, scene_path, setup_variant)
 
 _BSDF_NAMES = {
     "SmoothDiffuse": "diffuse", "TwoSidedBRDF": "twosided", "SmoothDielectric": "dielectric",
@@ -29,7 +29,7 @@ def _variant_line(mi) -> str:
     return "variant:    %s" % variant
 
 
-def _sensor_lines(scene) -> list:
+def _sensor_lines(scene, chosen: int) -> list:
     from ..emitters import plugin_name
     sensors = scene.sensors()
     if not sensors:
@@ -37,7 +37,8 @@ def _sensor_lines(scene) -> list:
     lines = []
     for i, sensor in enumerate(sensors):
         name = plugin_name(sensor)
-        note = "  [not rendered: bdpt renders the first sensor]" if i > 0 else ""
+        note = "" if len(sensors) == 1 else "  [%d%s]" % (
+            i, ": rendered" if i == chosen else "; --sensor %d renders it" % i)
         film, sampler = sensor.film(), sensor.sampler()
         size = tuple(int(x) for x in film.size())
         crop = tuple(int(x) for x in film.crop_size())
@@ -69,12 +70,12 @@ def _content_lines(scene) -> list:
     return lines
 
 
-def _verdict(scene, settings: dict) -> str:
+def _verdict(scene, sensor: int, settings: dict) -> str:
     """The definitive answer: what constructing the renderer says."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            make_renderer(scene, None, 0, False, settings)
+            make_renderer(scene, sensor, None, 0, False, settings)
         except CLIError as e:
             return "status:     REFUSED: %s" % e
     extra = "".join("; warning: %s" % one_line(w.message) for w in caught)
@@ -86,13 +87,14 @@ def run(args) -> int:
     mi = setup_variant(args.variant)
     params = scene_params(args)
     scene = load_scene(mi, path, params)
+    check_sensor_index(scene, args.sensor)
     lines = ["scene:      %s%s" % (path, (" (%s)" % ", ".join(
         "%s=%s" % kv for kv in sorted(params.items()))) if params else ""), _variant_line(mi)]
-    lines += _sensor_lines(scene) + _content_lines(scene)
+    lines += _sensor_lines(scene, args.sensor) + _content_lines(scene)
     settings, integrator_name = integrator_defaults(scene)
     lines.append("integrator: %s in the file (bdpt renders instead%s)" % (
         integrator_name, ", with " + ", ".join("%s=%s" % kv for kv in sorted(settings.items()))
         if settings else ""))
-    lines.append(_verdict(scene, settings))
+    lines.append(_verdict(scene, args.sensor, settings))
     print("\n".join(lines), flush=True)
     return 0

@@ -11,7 +11,7 @@ from .errors import CLIError, eprint, one_line
 from .images import check_writable, output_path, write_png
 
 # Header entries that should agree between the merged images (a warning otherwise).
-_SAME = ("scene", "scene_params", "variant") + tuple(
+_SAME = ("scene", "scene_params", "sensor", "variant") + tuple(
     p.name for p in PARAMS if p.name not in ("samples_per_pass", "memory_budget"))
 
 

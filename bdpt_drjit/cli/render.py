@@ -9,8 +9,8 @@ from ..settings import PARAMS
 from .errors import eprint
 from .images import check_writable, contact_sheet, output_path, write_png
 from .progress import Progress, StopRequest, fmt_rate, fmt_time
-from .scene import (integrator_defaults, load_scene, make_renderer, scene_params, scene_path,
-                    setup_variant)
+from .scene import (check_sensor_index, integrator_defaults, load_scene, make_renderer,
+                    scene_params, scene_path, setup_variant)
 
 # With --time or --checkpoint and no --samples-per-pass, passes are kept small
 # (at most spp/16 samples per pixel and about this many lanes, fewer on the CPU
@@ -68,7 +68,7 @@ def _renderer(args, scene, settings):
     pass than the memory budget allows), so that both are honoured closely."""
     chose_pass_size = "samples_per_pass" in settings
     settings.setdefault("samples_per_pass", 0)
-    make = lambda: make_renderer(scene, args.spp, args.seed,  # noqa: E731
+    make = lambda: make_renderer(scene, args.sensor, args.spp, args.seed,  # noqa: E731
                                  args.strategy_images, settings)
     renderer = make()
     timed = args.time is not None or args.checkpoint is not None
@@ -88,7 +88,7 @@ def _metadata(args, path: Path, params: dict, renderer) -> dict:
     meta = {"spp": 0, "seed": args.seed, "bdpt_version": __version__,
             "scene": str(path.resolve()),
             "scene_params": ",".join("%s=%s" % kv for kv in sorted(params.items())),
-            "passes": 0, "render_time": 0.0,
+            "sensor": args.sensor, "passes": 0, "render_time": 0.0,
             "variant": args.variant, "spp_requested": renderer.spp}
     for p in PARAMS:
         value = getattr(renderer.settings, p.name)
@@ -103,11 +103,11 @@ def _announce(path: Path, renderer, args) -> None:
     depth, technique = renderer.settings.max_depth, renderer.settings.technique
     w, h = (int(x) for x in renderer.sensor.film().crop_size())
     passes = len(renderer.plan)
-    eprint("bdpt: rendering %s (%dx%d, %d spp in %d pass%s, max_depth %s%s, seed %d, %s)"
+    eprint("bdpt: rendering %s (%dx%d, %d spp in %d pass%s, max_depth %s%s%s, seed %d, %s)"
            % (path.name, w, h, renderer.spp, passes, "" if passes == 1 else "es",
               "unbounded" if depth < 0 else depth,
               "" if technique is None else ", technique %d,%d" % technique,
-              args.seed, args.variant))
+              ", sensor %d" % args.sensor if args.sensor else "", args.seed, args.variant))
 
 
 def _render_loop(renderer, args, stop, save) -> tuple:
@@ -161,6 +161,7 @@ def run(args) -> int:
     mi = setup_variant(args.variant)
     params = scene_params(args)
     scene = load_scene(mi, path, params)
+    check_sensor_index(scene, args.sensor)
     renderer = _renderer(args, scene, _settings(args, scene))
     outputs.meta = _metadata(args, path, params, renderer)
     if not args.quiet:

@@ -1,4 +1,4 @@
-"""What render and info share: the variant, the scene, the renderer."""
+"""What render and info share: the variant, the scene, its sensor, the renderer."""
 from __future__ import annotations
 
 import re
@@ -75,6 +75,13 @@ def load_scene(mi, path: Path, params: dict):
         raise CLIError("cannot load scene %s: %s" % (path, one_line(e))) from None
 
 
+def check_sensor_index(scene, index: int) -> None:
+    count = len(scene.sensors())
+    if count and index >= count:
+        raise CLIError("--sensor %d: the scene has %d sensor%s (indices 0 to %d)"
+                       % (index, count, "" if count == 1 else "s", count - 1), 2)
+
+
 def integrator_defaults(scene) -> tuple[dict, str]:
     """Renderer settings the scene's own integrator asks for (max_depth, rr_depth, or
     everything if it is a ``bdpt`` integrator), and its description."""
@@ -95,12 +102,12 @@ def integrator_defaults(scene) -> tuple[dict, str]:
     return out, integ.class_name()
 
 
-def make_renderer(scene, spp, seed, strategy_images, settings):
+def make_renderer(scene, sensor, spp, seed, strategy_images, settings):
     from ..emitters import UnsupportedPluginError
     from ..render import Renderer
     try:
-        return Renderer(scene, spp=spp, seed=seed, strategy_images=strategy_images,
-                        **settings)
+        return Renderer(scene, sensor=sensor, spp=spp, seed=seed,
+                        strategy_images=strategy_images, **settings)
     except UnsupportedPluginError as e:
         raise CLIError("the scene uses an unsupported plugin: %s" % one_line(e)) from None
     except (ValueError, RuntimeError) as e:
