@@ -317,6 +317,11 @@ BAD = [
     ("info missing scene", ["info", "no-such-scene.xml"], ["not found"]),
     ("bad bdpt parameter in the scene", ["render", "{scenes}/bad-bdpt.xml"],
      ["bad-bdpt.xml", "heuristic 'nope'", "choose one of"]),
+    ("technique past max_depth", ["render", CORNELL, *TINY, "--technique", "9,9"],
+     ["technique 9,9", "max_depth 8", "black"]),
+    ("light-tracing technique outside pt",
+     ["render", CORNELL, *TINY, "--technique", "2,1", "--strategy-subset", "pt"],
+     ["technique 2,1", "strategy_subset 'pt'"]),
     ("rr_depth 0", ["render", CORNELL, *TINY, "--rr-depth", "0"], ["--rr-depth", "positive"]),
     ("memory budget too small", ["render", CORNELL, *TINY, "--memory-budget", "1K"],
      ["--memory-budget", "1 MiB"]),
@@ -333,8 +338,10 @@ def test_bad_input(tmp_path, scenes, args, words):
     args = [a.format(scenes=scenes, tmp=tmp_path) for a in args]
     if args[0] == "render" and "-o" not in args:
         args += ["-o", str(tmp_path / "out.exr")]
-    clean_error(run_cli(*args, cwd=tmp_path), *words)
+    error = clean_error(run_cli(*args, cwd=tmp_path), *words)
     assert written(tmp_path) == [], "files were written: %s" % written(tmp_path)
+    if "2,1" in args:          # the user never set light_image: not blamed
+        assert "light_image" not in error, error
 
 
 @pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="root can write anywhere")
