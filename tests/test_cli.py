@@ -1,6 +1,7 @@
 """The ``bdpt`` command line, driven as a user would: ``python -m bdpt_drjit ...`` in
 a subprocess, on tiny images.  Also the EXR reader/writer (bdpt_drjit.exr)."""
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -315,6 +316,7 @@ BAD = [
     ("output parent is a file", ["render", CORNELL, *TINY, "-o", "{tmp}/scenes/ortho.xml/out.exr"],
      ["cannot write"]),
     ("info missing scene", ["info", "no-such-scene.xml"], ["not found"]),
+    ("info missing image", ["info", "no-such-image.exr"], ["no-such-image.exr", "not found"]),
     ("bad bdpt parameter in the scene", ["render", "{scenes}/bad-bdpt.xml"],
      ["bad-bdpt.xml", "heuristic 'nope'", "choose one of"]),
     ("technique past max_depth", ["render", CORNELL, *TINY, "--technique", "9,9"],
@@ -394,6 +396,25 @@ def test_info(scenes):
     assert "constant" in p.stdout and "REFUSED" not in p.stdout
     p = ok(run_cli("info", NO_EMITTERS))
     assert "black" in p.stdout
+
+
+def test_info_of_an_image(tmp_path):
+    """``bdpt info out.exr`` shows the render's header, as pbrt's imgtool info does."""
+    out = tmp_path / "r.exr"
+    ok(run_cli("render", CORNELL, *TINY, "--spp", 2, "--seed", 7, "--mis", "balance",
+               "--strategy-images", "-o", out))
+    text = ok(run_cli("info", out)).stdout
+    fields = dict(re.findall(r"^(\w+):\s+(.*)$", text, re.M))
+    assert fields["size"] == "16x16" and fields["channels"] == "R, G, B"
+    assert fields["spp"] == "2" and fields["seed"] == "7" and fields["mis"] == "balance"
+    assert fields["scene"].endswith("cornell-box.xml") and float(fields["render_time"]) > 0
+    assert fields["max_depth"] == "8" and fields["technique"] == "all"
+    layers = ok(run_cli("info", tmp_path / "r.strategies.exr")).stdout
+    assert "s1t2" in layers and "seed:" in layers
+    write_exr(tmp_path / "plain.exr", np.ones((4, 6, 3), np.float32))
+    assert "nothing from bdpt" in ok(run_cli("info", tmp_path / "plain.exr")).stdout
+    (tmp_path / "junk.exr").write_text("junk")
+    clean_error(run_cli("info", tmp_path / "junk.exr"), "junk.exr", "OpenEXR")
 
 
 def test_console_script_and_help():

@@ -5,6 +5,7 @@
                 [--variant llvm_ad_rgb] [renderer settings] [--strategy-images] [--quiet]
     bdpt merge a.exr b.exr ... -o out.exr
     bdpt info [SCENE.xml] [-D key=value ...] [--sensor N]
+    bdpt info IMAGE.exr
 
 The renderer settings are the integrator's parameters (``bdpt_drjit.settings.PARAMS``)
 as options: ``--max-depth N``, ``--mis power``, ``--strategy-subset pt``,
@@ -16,7 +17,8 @@ cleanly after the current pass on Ctrl-C (SIGINT) or SIGTERM, or once the
 ``--time`` budget is used up, and writes the image of the passes done.  The EXR
 header records what the image is: ``spp`` (int), ``seed``, ``passes``,
 ``render_time``, ``scene``, ``bdpt_version`` and the settings, so that ``bdpt
-merge`` can combine independent renders (different seeds) weighted by their spp.
+merge`` can combine independent renders (different seeds) weighted by their spp,
+and ``bdpt info`` can show it.
 Files are replaced atomically, so an interrupted write never leaves a broken file.
 
 Errors in the input (missing or malformed scene, unsupported plugins, bad

@@ -185,10 +185,13 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("-o", "--output", required=True, metavar="OUT.exr")
     m.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
-    i = sub.add_parser("info", help="what the renderer sees in a scene",
-                       description="List a scene's sensor, film, emitters and BSDFs, and "
-                       "whether bdpt can render it (and if not, why).")
-    i.add_argument("scene", nargs="?", help="scene XML file (default: the Cornell box)")
+    i = sub.add_parser("info", help="what the renderer sees in a scene, or an image's header",
+                       description="For a scene: list its sensors, film, emitters and BSDFs, "
+                       "and whether bdpt can render it (and if not, why). For an .exr "
+                       "written by 'bdpt render' or 'bdpt merge': its size, channels and "
+                       "header (spp, seed, time, settings, scene).")
+    i.add_argument("scene", nargs="?", metavar="SCENE.xml|IMAGE.exr",
+                   help="scene XML file (default: the Cornell box) or an OpenEXR image")
     add_scene_options(i)
     return parser
 

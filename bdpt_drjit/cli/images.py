@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import CLIError
+from .errors import CLIError, one_line
 
 
 def output_path(arg, scene: Path) -> Path:
@@ -42,6 +42,17 @@ def check_writable(paths) -> None:
         except OSError as e:
             raise CLIError("cannot write %s: %s" % (path, e.strerror or e)) from None
         checked.add(parent)
+
+
+def read_image(name) -> tuple[dict, dict]:
+    """An EXR's channels and header, or a CLIError saying why not."""
+    from ..exr import read_channels
+    if not Path(name).is_file():
+        raise CLIError("image not found: %s" % name)
+    try:
+        return read_channels(name)
+    except Exception as e:
+        raise CLIError("cannot read %s as OpenEXR: %s" % (name, one_line(e))) from None
 
 
 def srgb8(image) -> np.ndarray:

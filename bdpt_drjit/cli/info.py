@@ -1,9 +1,11 @@
-"""``bdpt info``: what the renderer sees in a scene."""
+"""``bdpt info``: what the renderer sees in a scene, or what an image's header says."""
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 
 from .errors import CLIError, one_line
+from .images import read_image
 from .scene import (check_sensor_index, integrator_defaults, load_scene, make_renderer,
                     scene_params, scene_path, setup_variant)
 
@@ -16,6 +18,9 @@ _BSDF_NAMES = {
     "NullBSDF": "null", "BumpMap": "bumpmap", "NormalMap": "normalmap",
     "HairBSDF": "hair", "Polarizer": "polarizer", "Retarder": "retarder",
     "MeasuredBSDF": "measured", "PPLastic": "pplastic"}
+# The header entries of 'bdpt render', in the order shown; others follow.
+_HEADER_ORDER = ("spp", "spp_requested", "seed", "passes", "render_time", "merged_from",
+                 "scene", "scene_params", "sensor", "variant", "bdpt_version")
 
 
 def _variant_line(mi) -> str:
@@ -82,7 +87,7 @@ def _verdict(scene, sensor: int, settings: dict) -> str:
     return "status:     supported: 'bdpt render' will render it%s" % extra
 
 
-def run(args) -> int:
+def scene_info(args) -> list:
     path = scene_path(args.scene)
     mi = setup_variant(args.variant)
     params = scene_params(args)
@@ -96,5 +101,40 @@ def run(args) -> int:
         integrator_name, ", with " + ", ".join("%s=%s" % kv for kv in sorted(settings.items()))
         if settings else ""))
     lines.append(_verdict(scene, args.sensor, settings))
+    return lines
+
+
+def _channel_order(name: str):
+    layer, _, short = name.rpartition(".")
+    return layer, "RGBAY".find(short) if short in "RGBAY" else 5, short
+
+
+def image_info(name: str) -> list:
+    """An EXR's size, channels and header (spp, seed, time, settings, scene), as
+    pbrt's ``imgtool info`` shows them."""
+    import numpy as np
+    channels, meta = read_image(name)
+    names = sorted(channels, key=_channel_order)
+    top = [c for c in names if "." not in c]
+    layers = sorted({c.rpartition(".")[0] for c in names if "." in c})
+    h, w = channels[names[0]].shape[:2]
+    bad = sum(int(np.size(v) - np.isfinite(v).sum()) for v in channels.values())
+    rows = [("image", name), ("size", "%dx%d" % (w, h)), ("channels", ", ".join(top) or "-"),
+            ("average", (", ".join("%s %.6g" % (c, float(np.nanmean(channels[c]))) for c in top)
+                         or "-") + (", %d non-finite values" % bad if bad else ""))]
+    if layers:
+        rows.append(("layers", "%d (%s)" % (len(layers), ", ".join(layers))))
+    if not meta:
+        rows.append(("header", "nothing from bdpt (not written by 'bdpt render' or 'bdpt merge')"))
+    keys = [k for k in _HEADER_ORDER if k in meta] + sorted(k for k in meta if k not in _HEADER_ORDER)
+    rows += [(k, "%.6g" % meta[k] if isinstance(meta[k], float) else meta[k]) for k in keys]
+    width = max(len(k) for k, _ in rows) + 2
+    lines = ["%-*s%s" % (width, k + ":", v) for k, v in rows]
+    return lines
+
+
+def run(args) -> int:
+    is_image = args.scene is not None and Path(args.scene).suffix.lower() == ".exr"
+    lines = image_info(args.scene) if is_image else scene_info(args)
     print("\n".join(lines), flush=True)
     return 0

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from ..settings import PARAMS
-from .errors import CLIError, eprint, one_line
-from .images import check_writable, output_path, write_png
+from .errors import CLIError, eprint
+from .images import check_writable, output_path, read_image, write_png
 
 # Header entries that should agree between the merged images (a warning otherwise).
 _SAME = ("scene", "scene_params", "sensor", "variant") + tuple(
@@ -28,13 +28,7 @@ def _seeds(value) -> list:
 
 def _read(name: str) -> tuple:
     """(name, channels, header, spp, seeds) of an input, or a CLIError saying why not."""
-    from ..exr import read_channels
-    if not Path(name).is_file():
-        raise CLIError("image not found: %s" % name)
-    try:
-        channels, meta = read_channels(name)
-    except Exception as e:
-        raise CLIError("cannot read %s as OpenEXR: %s" % (name, one_line(e))) from None
+    channels, meta = read_image(name)
     spp = meta.get("spp")
     if not isinstance(spp, int) or isinstance(spp, bool) or spp <= 0:
         raise CLIError("%s has no spp in its header (not written by 'bdpt render'?); "
