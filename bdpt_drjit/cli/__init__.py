@@ -14,11 +14,11 @@ the same command.  ``bdpt SCENE.xml ...`` is short for ``bdpt render SCENE.xml .
 
 Rendering is progressive: the renderer works in passes, and the command stops
 cleanly after the current pass on Ctrl-C (SIGINT) or SIGTERM, or once the
-``--time`` budget is used up, and writes the image of the passes done.  The EXR
-header records what the image is: ``spp`` (int), ``seed``, ``passes``,
-``render_time``, ``scene``, ``bdpt_version`` and the settings, so that ``bdpt
-merge`` can combine independent renders (different seeds) weighted by their spp,
-and ``bdpt info`` can show it.
+``--time`` budget is used up, and writes the image of the passes done; after a
+signal the exit status is 130 (SIGINT) or 143 (SIGTERM).  The EXR header records
+what the image is: ``spp`` (int), ``seed``, ``passes``, ``render_time``, ``scene``,
+``bdpt_version`` and the settings, so that ``bdpt merge`` can combine independent
+renders (different seeds) weighted by their spp, and ``bdpt info`` can show it.
 Files are replaced atomically, so an interrupted write never leaves a broken file.
 
 Errors in the input (missing or malformed scene, unsupported plugins, bad

@@ -163,7 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Render a Mitsuba XML scene with BDPT. Writes OUT.exr "
                        "(float32, spp, seed and settings in the header) and a tone-mapped "
                        "sRGB preview OUT.png. Ctrl-C stops after the current pass and "
-                       "writes what was rendered.")
+                       "writes what was rendered (exit status 130; 143 for SIGTERM).")
     r.add_argument("scene", nargs="?", help="scene XML file (default: the Cornell box in scenes/)")
     r.add_argument("-o", "--output", metavar="OUT.exr",
                    help="output EXR (default: <scene name>.exr in the current directory)")

@@ -26,6 +26,11 @@ def fmt_rate(x: float) -> str:
     return "%.3g " % x
 
 
+def exit_status(signum: int) -> int:
+    """The shell's status for a process ended by ``signum`` (130 for SIGINT)."""
+    return 128 + signum
+
+
 class Progress:
     """A progress bar on stderr: redrawn in place on a terminal, a line every few
     seconds otherwise (the first one right after the first pass)."""

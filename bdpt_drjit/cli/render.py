@@ -8,7 +8,7 @@ from pathlib import Path
 from ..settings import PARAMS
 from .errors import eprint
 from .images import check_writable, contact_sheet, output_path, write_png
-from .progress import Progress, StopRequest, fmt_rate, fmt_time
+from .progress import Progress, StopRequest, exit_status, fmt_rate, fmt_time
 from .scene import (check_sensor_index, integrator_defaults, load_scene, make_renderer,
                     scene_params, scene_path, setup_variant)
 
@@ -144,6 +144,9 @@ def _report(res, renderer, outputs, reason, wall, stop, args) -> None:
         eprint("bdpt: interrupted (%s) after %d of %d spp (%d of %d passes); wrote the "
                "image of the passes done" % (signal.Signals(stop.signal).name, res.spp,
                                              renderer.spp, res.passes, len(renderer.plan)))
+    elif stop.signal is not None:
+        eprint("bdpt: %s arrived during the last pass; the image is complete"
+               % signal.Signals(stop.signal).name)
     elif reason == "time":
         eprint("bdpt: time budget of %s used up after %d of %d spp"
                % (fmt_time(args.time), res.spp, renderer.spp))
@@ -155,6 +158,8 @@ def _report(res, renderer, outputs, reason, wall, stop, args) -> None:
 
 
 def run(args) -> int:
+    """Render; exit status 0, or 128 + the signal's number if SIGINT or SIGTERM
+    stopped it (after writing the image of the passes done)."""
     path = scene_path(args.scene)
     outputs = Outputs(output_path(args.output, path), args.strategy_images)
     check_writable(outputs.paths)
@@ -170,4 +175,4 @@ def run(args) -> int:
         reason, wall = _render_loop(renderer, args, stop, outputs.save)
         res = outputs.save(renderer)
     _report(res, renderer, outputs, reason, wall, stop, args)
-    return 0
+    return 0 if stop.signal is None else exit_status(stop.signal)
