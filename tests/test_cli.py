@@ -1,5 +1,6 @@
 """The ``bdpt`` command line, driven as a user would: ``python -m bdpt_drjit ...`` in
 a subprocess, on tiny images.  Also the EXR reader/writer (bdpt_drjit.exr)."""
+import contextlib
 import os
 import re
 import shutil
@@ -180,17 +181,28 @@ def test_no_emitters_warns_and_renders_black(tmp_path):
 
 
 # -- progressive rendering --------------------------------------------------------------------
+@contextlib.contextmanager
+def background_render(out, *extra, stderr=subprocess.PIPE):
+    """A render of ~2000 passes (far longer than a test waits), killed if the test
+    leaves it running."""
+    proc = subprocess.Popen([sys.executable, "-m", "bdpt_drjit", "render", CORNELL, *TINY,
+                             "--spp", "4096", "--samples-per-pass", "2", "--max-depth", "3",
+                             "-o", str(out), *map(str, extra)],
+                            stdout=subprocess.PIPE, stderr=stderr, text=True, env=cli_env())
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_signal_stops_after_current_pass(tmp_path, sig):
     out = tmp_path / "int.exr"
-    spp, per_pass = 4096, 2               # ~2000 passes: far longer than the test waits
-    proc = subprocess.Popen([sys.executable, "-m", "bdpt_drjit", "render", CORNELL, *TINY,
-                             "--spp", str(spp), "--samples-per-pass", str(per_pass),
-                             "--max-depth", "3", "-o", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=cli_env())
+    spp, per_pass = 4096, 2
     lines = []
-    try:
+    with background_render(out) as proc:
         for line in proc.stderr:
             lines.append(line)
             if line.startswith("bdpt: [") and "passes" in line:
@@ -199,10 +211,6 @@ def test_signal_stops_after_current_pass(tmp_path, sig):
         assert "samples/s" in lines[-1] and "left" in lines[-1]
         proc.send_signal(sig)
         stdout, stderr = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     stderr = "".join(lines) + stderr
     assert proc.returncode == 128 + sig, stderr      # 130 for SIGINT, 143 for SIGTERM
     assert "Traceback" not in stderr
@@ -236,6 +244,48 @@ def test_time_and_checkpoint_use_many_passes(tmp_path):
                "--checkpoint", 0.01, "-o", out))
     _, meta = read_exr(out)
     assert meta["spp"] == 32 and meta["passes"] == 16 and meta["samples_per_pass"] == 2
+
+
+def _wait_for(condition, what, timeout=60.0):
+    end = time.perf_counter() + timeout
+    while not condition():
+        assert time.perf_counter() < end, "timed out waiting for " + what
+        time.sleep(0.02)
+
+
+@pytest.mark.parametrize("restore", [True, False], ids=["checkpoint-fails", "final-write-fails"])
+def test_failed_write(tmp_path, restore):
+    """A checkpoint that cannot be written (here: the output became a directory, so
+    the atomic rename fails) is one warning and rendering goes on; if the final write
+    fails too, the exit status says so, in one line."""
+    out, log = tmp_path / "ck.exr", tmp_path / "stderr.txt"
+    with open(log, "w") as err, background_render(out, "--checkpoint", "0.05", "-q",
+                                                  stderr=err) as proc:
+        _wait_for(lambda: out.exists() or proc.poll() is not None, "the first checkpoint")
+        while not out.is_dir():          # a checkpoint may land between the two steps
+            with contextlib.suppress(FileNotFoundError, FileExistsError):
+                out.unlink()
+                out.mkdir()
+        _wait_for(lambda: "not saved" in log.read_text() or proc.poll() is not None,
+                  "a failed checkpoint")
+        if restore:
+            out.rmdir()
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=120)
+    stderr = log.read_text()
+    assert "Traceback" not in stderr
+    warnings = [line for line in stderr.splitlines()
+                if line.startswith("bdpt: warning: checkpoint")]
+    assert len(warnings) == 1, stderr         # said once while the problem lasts
+    assert "cannot write %s" % out in warnings[0] and "rendering goes on" in warnings[0]
+    if restore:
+        assert proc.returncode == 130, stderr
+        img, meta = read_exr(out)
+        assert meta["spp"] > 0 and np.all(np.isfinite(img))
+    else:
+        assert proc.returncode == 1, stderr
+        errors = [line for line in stderr.splitlines() if line.startswith("bdpt: error:")]
+        assert len(errors) == 1 and "cannot write %s" % out in errors[0], stderr
 
 
 # -- merge ----------------------------------------------------------------------------------

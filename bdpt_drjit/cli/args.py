@@ -173,7 +173,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--time", type=_positive_float, metavar="SECONDS",
                    help="time budget: stop after the pass that crosses it")
     r.add_argument("--checkpoint", type=_positive_float, metavar="SECONDS",
-                   help="rewrite the output every SECONDS while rendering")
+                   help="rewrite the output every SECONDS while rendering (a failed "
+                        "rewrite is reported and rendering goes on)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     add_scene_options(r)
     add_renderer_options(r)

@@ -6,7 +6,7 @@ import time
 from pathlib import Path
 
 from ..settings import PARAMS
-from .errors import eprint
+from .errors import CLIError, eprint, one_line
 from .images import check_writable, contact_sheet, output_path, write_png
 from .progress import Progress, StopRequest, exit_status, fmt_rate, fmt_time
 from .scene import (check_sensor_index, integrator_defaults, load_scene, make_renderer,
@@ -20,7 +20,7 @@ _TIMED_PASS_LANES = {"llvm": 1 << 16, "cuda": 1 << 20}
 
 class Outputs:
     """The files a render writes (EXR, PNG preview, strategy images), each replaced
-    atomically."""
+    atomically; ``write`` returns one line per file that could not be written."""
 
     def __init__(self, out: Path, strategy_images: bool):
         self.exr, self.png = out, out.with_suffix(".png")
@@ -28,12 +28,21 @@ class Outputs:
         self.layers_exr = out.with_suffix(".strategies.exr")
         self.sheet_png = out.with_suffix(".strategies.png")
         self.meta = {}
+        self._warned = None
 
-    def save(self, renderer):
-        """Write the image of the passes done."""
+    def save(self, renderer, final: bool):
+        """Write the image of the passes done.  A checkpoint that cannot be written
+        is reported (once per distinct problem) and rendering goes on; the final
+        write must succeed."""
         res = renderer.result()
         self.meta.update(spp=res.spp, passes=res.passes, render_time=float(res.time))
-        self.write(res, self.meta)
+        failed = "; ".join(self.write(res, self.meta))
+        if failed and final:
+            raise CLIError("%s (the render of %d spp was not saved there)" % (failed, res.spp))
+        if failed and failed != self._warned:
+            eprint("bdpt: warning: checkpoint at %d spp not saved: %s; rendering goes on"
+                   % (res.spp, failed))
+        self._warned = failed or None
         return res
 
     @property
@@ -41,7 +50,7 @@ class Outputs:
         extra = [self.layers_exr, self.sheet_png] if self.strategy_images else []
         return [self.exr, self.png] + extra
 
-    def write(self, res, meta) -> None:
+    def write(self, res, meta) -> list:
         from ..exr import write_exr, write_layers
         jobs = [(self.exr, lambda p: write_exr(p, res.image, meta)),
                 (self.png, lambda p: write_png(p, res.image))]
@@ -51,8 +60,14 @@ class Outputs:
                          lambda p: write_layers(p, layers, meta, image=res.image)))
             if res.strategies:
                 jobs.append((self.sheet_png, lambda p: write_png(p, contact_sheet(res.strategies))))
+        failed = []
         for path, job in jobs:
-            job(path)
+            try:
+                job(path)
+            except Exception as e:  # a full disk, a path turned into a directory, ...
+                reason = e.strerror if isinstance(e, OSError) and e.strerror else one_line(e)
+                failed.append("cannot write %s: %s" % (path, reason))
+        return failed
 
 
 def _settings(args, scene) -> dict:
@@ -129,7 +144,7 @@ def _render_loop(renderer, args, stop, save) -> tuple:
         if reason:
             break
         if args.checkpoint is not None and now - last_checkpoint >= args.checkpoint:
-            save(renderer)
+            save(renderer, final=False)
             last_checkpoint = time.perf_counter()
     progress.finish()
     return reason, time.perf_counter() - t0
@@ -173,6 +188,6 @@ def run(args) -> int:
         _announce(path, renderer, args)
     with StopRequest(announce=not args.quiet) as stop:
         reason, wall = _render_loop(renderer, args, stop, outputs.save)
-        res = outputs.save(renderer)
+        res = outputs.save(renderer, final=True)
     _report(res, renderer, outputs, reason, wall, stop, args)
     return 0 if stop.signal is None else exit_status(stop.signal)
