@@ -246,6 +246,36 @@ def test_time_and_checkpoint_use_many_passes(tmp_path):
     assert meta["spp"] == 32 and meta["passes"] == 16 and meta["samples_per_pass"] == 2
 
 
+def _wait_until_importing(proc, library="drjit", timeout=60.0):
+    """Wait until ``proc`` has begun loading Dr.Jit's extension modules (on Linux: the
+    library appears in /proc/PID/maps), so that a delay after that hits the import,
+    not Python's own start-up (site-packages' .pth files, 50-100 ms here)."""
+    maps = Path("/proc/%d/maps" % proc.pid)
+    end = time.perf_counter() + timeout
+    while maps.exists() and time.perf_counter() < end and proc.poll() is None:
+        with contextlib.suppress(OSError):
+            if library in maps.read_text():
+                return
+        time.sleep(0.002)
+
+
+@pytest.mark.parametrize("delay, sig", [(0.0, signal.SIGINT), (0.05, signal.SIGINT),
+                                        (0.1, signal.SIGINT), (0.15, signal.SIGINT),
+                                        (0.2, signal.SIGINT), (0.3, signal.SIGINT),
+                                        (0.45, signal.SIGINT), (0.1, signal.SIGTERM)])
+def test_signal_while_starting(tmp_path, delay, sig):
+    """Ctrl-C or SIGTERM while Mitsuba is imported, the scene loaded or the first pass
+    compiled: one line and exit status 128 + signal, never a traceback or an abort."""
+    with background_render(tmp_path / "start.exr", "-q") as proc:
+        _wait_until_importing(proc)
+        time.sleep(delay)
+        proc.send_signal(sig)
+        _, stderr = proc.communicate(timeout=120)
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert proc.returncode == 128 + sig, stderr
+    assert len(lines) == 1 and lines[0].startswith("bdpt: interrupted (%s)" % sig.name), stderr
+
+
 def _wait_for(condition, what, timeout=60.0):
     end = time.perf_counter() + timeout
     while not condition():

@@ -37,7 +37,8 @@ import sys
 import warnings
 
 from .args import parse_args
-from .errors import CLIError, eprint, one_line
+from .errors import CLIError, Interrupted, eprint, one_line
+from .progress import StopRequest, exit_status
 
 __all__ = ["main", "CLIError"]
 
@@ -46,22 +47,30 @@ def _showwarning(message, category, filename, lineno, file=None, line=None):
     eprint("bdpt: warning: %s" % one_line(message))
 
 
+def _run(argv, stop) -> int:
+    stop.check()               # a signal that arrived while bdpt_drjit was imported
+    args = parse_args(argv)
+    return importlib.import_module("." + args.command, __name__).run(args, stop)
+
+
 def main(argv=None) -> int:
     """Run the command line; returns the exit status."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), StopRequest() as stop:
         warnings.showwarning = _showwarning
         # Renamed parameters in a scene's bdpt integrator: say so.
         warnings.filterwarnings("default", message="bdpt:", category=DeprecationWarning)
         try:
-            args = parse_args(argv)
-            return importlib.import_module("." + args.command, __name__).run(args)
+            return _run(argv, stop)
         except CLIError as e:
             eprint("bdpt: error: %s" % e)
             return e.code
-        except KeyboardInterrupt:
+        except Interrupted as e:
+            eprint("bdpt: interrupted (%s); nothing was written" % e)
+            return exit_status(e.signum)
+        except KeyboardInterrupt:          # a second signal
             eprint("\nbdpt: aborted; nothing more was written")
-            return 130
+            return exit_status(stop.signal or 2)
         except BrokenPipeError:
             return 1
         except Exception as e:

@@ -133,8 +133,9 @@ def image_info(name: str) -> list:
     return lines
 
 
-def run(args) -> int:
+def run(args, stop) -> int:
     is_image = args.scene is not None and Path(args.scene).suffix.lower() == ".exr"
     lines = image_info(args.scene) if is_image else scene_info(args)
+    stop.check()
     print("\n".join(lines), flush=True)
     return 0

@@ -83,7 +83,7 @@ def _average(images) -> tuple[dict, dict]:
     return merged, meta
 
 
-def run(args) -> int:
+def run(args, stop) -> int:
     from ..exr import assemble_channels, write_channels
     if len(args.inputs) < 2:
         raise CLIError("merge needs at least two images")
@@ -93,6 +93,7 @@ def run(args) -> int:
     images = [_read(name) for name in args.inputs]
     _check_compatible(images, args.quiet)
     merged, meta = _average(images)
+    stop.check()
     write_channels(out, merged, meta)
     wrote = [str(out)]
     top = {c: v for c, v in merged.items() if "." not in c}

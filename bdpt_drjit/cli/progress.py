@@ -1,11 +1,12 @@
-"""Progress output and stop requests (SIGINT, SIGTERM)."""
+"""Progress output and stop requests (SIGINT, SIGTERM, a time budget)."""
 from __future__ import annotations
 
 import math
 import signal
 import sys
 
-from .errors import eprint
+from .._signals import SignalLatch, take_over
+from .errors import Interrupted, eprint
 
 
 def fmt_time(seconds: float) -> str:
@@ -84,32 +85,32 @@ class Progress:
         self.drawn = False
 
 
-class StopRequest:
-    """SIGINT/SIGTERM handlers that ask the render loop to stop after this pass; a
-    second signal aborts at once (KeyboardInterrupt), writing nothing more."""
+class StopRequest(SignalLatch):
+    """SIGINT/SIGTERM for the whole command: the first is recorded, and the command
+    stops at its next safe point (``check`` before rendering; after the current pass
+    while rendering); a second aborts at once (KeyboardInterrupt), writing nothing
+    more.  A signal that arrived while bdpt_drjit was imported counts as the first."""
 
-    def __init__(self, announce=True):
-        self.signal = None
-        self.announce = announce
-        self._old = {}
+    escalate = True
 
-    def _handler(self, signum, frame):
-        if self.signal is not None:
-            raise KeyboardInterrupt
-        self.signal = signum
+    def __init__(self):
+        super().__init__()
+        self.announce = None       # what to say on the first signal, once rendering
+
+    def on_signal(self, signum: int) -> None:
         if self.announce:
-            eprint("\nbdpt: %s: stopping after the current pass (again to abort)"
-                   % signal.Signals(signum).name)
+            eprint("\nbdpt: %s: %s (again to abort)" % (signal.Signals(signum).name,
+                                                         self.announce))
+
+    def check(self) -> None:
+        """Stop here (raise Interrupted) if a signal has arrived."""
+        if self.signal is not None:
+            raise Interrupted(self.signal)
 
     def __enter__(self):
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            try:
-                self._old[sig] = signal.signal(sig, self._handler)
-            except (ValueError, OSError):    # not the main thread
-                pass
-        return self
+        take_over(self)
+        return self.install()
 
     def __exit__(self, *exc):
-        for sig, old in self._old.items():
-            signal.signal(sig, old)
+        self.restore()
         return False

@@ -8,7 +8,7 @@ from pathlib import Path
 from ..settings import PARAMS
 from .errors import CLIError, eprint, one_line
 from .images import check_writable, contact_sheet, output_path, write_png
-from .progress import Progress, StopRequest, exit_status, fmt_rate, fmt_time
+from .progress import Progress, exit_status, fmt_rate, fmt_time
 from .scene import (check_sensor_index, integrator_defaults, load_scene, make_renderer,
                     scene_params, scene_path, setup_variant)
 
@@ -129,6 +129,7 @@ def _render_loop(renderer, args, stop, save) -> tuple:
     """Run passes until done, stopped (signal, time budget); checkpoint on the way.
     Returns why it stopped early (or None) and the time it took."""
     progress = Progress(renderer, budget=args.time, enabled=not args.quiet)
+    stop.announce = None if args.quiet else "stopping after the current pass"
     t0 = last_checkpoint = time.perf_counter()
     reason = None
     while not renderer.done:
@@ -172,7 +173,7 @@ def _report(res, renderer, outputs, reason, wall, stop, args) -> None:
              fmt_rate(rate), ", ".join(map(str, outputs.paths))), flush=True)
 
 
-def run(args) -> int:
+def run(args, stop) -> int:
     """Render; exit status 0, or 128 + the signal's number if SIGINT or SIGTERM
     stopped it (after writing the image of the passes done)."""
     path = scene_path(args.scene)
@@ -183,11 +184,11 @@ def run(args) -> int:
     scene = load_scene(mi, path, params)
     check_sensor_index(scene, args.sensor)
     renderer = _renderer(args, scene, _settings(args, scene))
+    stop.check()
     outputs.meta = _metadata(args, path, params, renderer)
     if not args.quiet:
         _announce(path, renderer, args)
-    with StopRequest(announce=not args.quiet) as stop:
-        reason, wall = _render_loop(renderer, args, stop, outputs.save)
-        res = outputs.save(renderer, final=True)
+    reason, wall = _render_loop(renderer, args, stop, outputs.save)
+    res = outputs.save(renderer, final=True)
     _report(res, renderer, outputs, reason, wall, stop, args)
     return 0 if stop.signal is None else exit_status(stop.signal)
