@@ -12,36 +12,45 @@ strategies), film.py (camera block and light-image splats), render.py (passes),
 emitters.py / camera.py (the emitter and sensor models), integrators/bdpt.py
 (the Mitsuba plugin).
 """
-from ._llvm import prepare as _prepare_llvm
-
-_prepare_llvm()
-
-import mitsuba as mi  # noqa: E402
-
-if mi.variant() is None:
-    try:
-        mi.set_variant("llvm_ad_rgb")
-    except ImportError:      # no usable LLVM: render() reports it with install advice
-        pass
-
-from .emitters import UnsupportedPluginError  # noqa: E402
-from .exr import read_exr, write_exr  # noqa: E402
-from .render import Renderer, RenderResult, render  # noqa: E402
-from .settings import HEURISTICS, PARAMS, Settings  # noqa: E402
+from ._signals import held_during_import
 
 __version__ = "0.1.0"
 
 
 def register() -> None:
-    """Register the ``bdpt`` integrator with Mitsuba for the current variant
-    (done on import; call again after ``mi.set_variant``)."""
+    """Register the ``bdpt`` integrator with Mitsuba for the current variant (done
+    on import and, through Mitsuba's variant callback, after every ``mi.set_variant``)."""
     if mi.variant() is None:
         return
     from integrators.bdpt import register as _register
     _register()
 
 
-register()
+def _on_variant_change(old, new) -> None:
+    register()
+
+
+# Ctrl-C while Mitsuba's extension modules load would break them: hold it until done.
+with held_during_import():
+    from ._llvm import prepare as _prepare_llvm
+
+    _prepare_llvm()
+
+    import mitsuba as mi
+
+    if mi.variant() is None:
+        try:
+            mi.set_variant("llvm_ad_rgb")
+        except ImportError:      # no usable LLVM: render() reports it with install advice
+            pass
+
+    from .emitters import UnsupportedPluginError
+    from .exr import read_exr, write_exr
+    from .render import Renderer, RenderResult, render
+    from .settings import HEURISTICS, PARAMS, Settings
+
+    register()
+    mi.detail.add_variant_callback(_on_variant_change)
 
 __all__ = ["render", "Renderer", "RenderResult", "Settings", "register",
            "UnsupportedPluginError", "HEURISTICS", "PARAMS", "read_exr", "write_exr"]

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from .emitters import UnsupportedPluginError, plugin_name
 
@@ -139,14 +140,15 @@ def check_sensor(sensor: mi.Sensor) -> None:
 
 def select_sensor(scene: mi.Scene, sensor) -> mi.Sensor:
     """The sensor to render (an index into the scene's sensors, or a sensor)."""
-    if isinstance(sensor, int):
+    if isinstance(sensor, (int, np.integer)):
         sensors = scene.sensors()
         if not sensors:
             raise ValueError("bdpt: the scene has no sensor")
         if not 0 <= sensor < len(sensors):
             raise ValueError("bdpt: sensor index %d is out of range: the scene has %d "
-                             "sensor%s" % (sensor, len(sensors), "" if len(sensors) == 1 else "s"))
-        sensor = sensors[sensor]
+                             "sensor%s (indices 0 to %d)" % (sensor, len(sensors),
+                             "" if len(sensors) == 1 else "s", len(sensors) - 1))
+        sensor = sensors[int(sensor)]
     check_sensor(sensor)
     return sensor
 

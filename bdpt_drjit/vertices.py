@@ -16,6 +16,8 @@ a sample.
 """
 from __future__ import annotations
 
+import dataclasses
+import typing
 from dataclasses import dataclass
 
 import drjit as dr
@@ -36,10 +38,6 @@ class LightVertex:
     s: mi.UInt32                     # the light vertex count of its strategies: s = i + 1
     next: mi.UInt32                  # the lane's next stored vertex, or NONE
 
-    @property
-    def record_bytes(self) -> int:
-        return RECORD_BYTES
-
 
 # p, n, uv, sh_frame, dp_du, dp_dv, wi, shape, instance, prim_index; beta, d_vcm, d_vc,
 # s, next (single-precision RGB; spectral variants store 4 wavelengths' worth)
@@ -58,12 +56,29 @@ class Splat:
 SPLAT_BYTES = 4 * (2 + 3 + 1 + 1)
 
 
+def empty(kind, n: int):
+    """``dr.empty(kind, n)`` for a record dataclass, its field types resolved for the
+    current variant (Dr.Jit caches a dataclass's types at first use, so after
+    ``mi.set_variant`` it would build the previous variant's arrays)."""
+    hints = typing.get_type_hints(kind)
+    return kind(**{f.name: (empty if dataclasses.is_dataclass(hints[f.name]) else dr.empty)(
+        hints[f.name], n) for f in dataclasses.fields(kind)})
+
+
+def gather(source, index, active=True):
+    """``dr.gather`` of a record dataclass, field by field (see ``empty``)."""
+    if dataclasses.is_dataclass(source):
+        return type(source)(**{f.name: gather(getattr(source, f.name), index, active)
+                               for f in dataclasses.fields(source)})
+    return dr.gather(type(source), source, index, active)
+
+
 class Pool:
     """An append-only buffer of records of one type, with a counter."""
 
     def __init__(self, kind, capacity: int):
         self.capacity = int(capacity)
-        self.items = dr.empty(kind, self.capacity)
+        self.items = empty(kind, self.capacity)
         self.count = dr.zeros(mi.UInt32, 1)
         self._capacity = dr.opaque(mi.UInt32, self.capacity)
 
@@ -107,7 +122,7 @@ class LightVertexStore:
         return dr.select(stored, item, prev)
 
     def vertex(self, item, active) -> LightVertex:
-        return dr.gather(LightVertex, self.vertices.items, item, active)
+        return gather(self.vertices.items, item, active)
 
     def overflowed(self) -> bool:
         return self.vertices.overflowed() or self.splats.overflowed()

@@ -36,6 +36,17 @@ from bdpt_drjit.settings import PARAM, Settings, canonical_name, rst_table  # no
 
 __doc__ = __doc__.replace("{params}", rst_table())
 
+# One class per Mitsuba variant: a class derives from the variant's own
+# SamplingIntegrator, and mi.render refuses integrators of another variant.
+_CLASSES = {}
+
+NESTING_ERROR = ("bdpt: cannot be nested in another integrator (such as 'aov' or 'moment'): "
+                 "it traces wavefronts of whole subpaths and splats light paths onto the "
+                 "film, so it cannot evaluate one camera ray at a time; render with bdpt "
+                 "directly")
+GRADIENT_ERROR = ("bdpt: gradients are not supported (render_%s): bdpt renders images "
+                  "only; differentiate with Mitsuba's 'prb' or 'direct_projective' integrators")
+
 
 def _settings_from(props: mi.Properties) -> dict:
     """The plugin's properties as settings (current, renamed or Mitsuba 0.5 names)."""
@@ -47,29 +58,69 @@ def _settings_from(props: mi.Properties) -> dict:
     return settings
 
 
-class BDPTIntegrator(mi.SamplingIntegrator):
-    __doc__ = __doc__
+def seed_value(seed) -> int:
+    """``seed`` as a Python int: Mitsuba passes an ``int`` or a ``mi.UInt32`` of size 1."""
+    if dr.is_array_v(seed):
+        if dr.width(seed) != 1:
+            raise ValueError("bdpt: seed must be a single value, got an array of %d"
+                             % dr.width(seed))
+        return int(seed[0])
+    return int(seed)
 
-    def __init__(self, props: mi.Properties):
-        super().__init__(props)
-        self.settings = _settings_from(props)
-        Settings(**self.settings)          # fail at load time on bad values
 
-    def render(self, scene: mi.Scene, sensor=0, seed: int = 0, spp: int = 0,
-               develop: bool = True, evaluate: bool = True) -> mi.TensorXf:
-        from bdpt_drjit.render import render
-        if not develop:
-            raise ValueError("bdpt: develop=False is not supported")
-        with dr.suspend_grad():
-            return render(scene, spp=spp or None, seed=int(seed), sensor=sensor,
-                          **self.settings).tensor
+def _make_class(base: type) -> type:
+    """The plugin class, derived from one variant's ``mi.SamplingIntegrator``."""
 
-    def aov_names(self):
-        return []
+    class BDPTIntegrator(base):
+        def __init__(self, props: mi.Properties):
+            super().__init__(props)
+            self.settings = _settings_from(props)
+            Settings(**self.settings)          # fail at load time on bad values
 
-    def to_string(self):
-        return "BDPTIntegrator[%s]" % ", ".join("%s=%r" % kv for kv in self.settings.items())
+        def render(self, scene: mi.Scene, sensor=0, seed=0, spp: int = 0,
+                   develop: bool = True, evaluate: bool = True) -> mi.TensorXf:
+            from bdpt_drjit.render import render
+            if not develop:
+                raise ValueError("bdpt: develop=False is not supported")
+            with dr.suspend_grad():
+                return render(scene, spp=spp or None, seed=seed_value(seed), sensor=sensor,
+                              **self.settings).tensor
+
+        def sample(self, *args, **kwargs):
+            # What integrators that nest another ('aov', 'moment') call per camera ray.
+            raise NotImplementedError(NESTING_ERROR)
+
+        def render_forward(self, *args, **kwargs):
+            raise NotImplementedError(GRADIENT_ERROR % "forward")
+
+        def render_backward(self, *args, **kwargs):
+            raise NotImplementedError(GRADIENT_ERROR % "backward")
+
+        def aov_names(self):
+            return []
+
+        def to_string(self):
+            return "BDPTIntegrator[%s]" % ", ".join("%s=%r" % kv for kv in self.settings.items())
+
+    BDPTIntegrator.__doc__ = __doc__
+    return BDPTIntegrator
+
+
+def integrator_class() -> type:
+    """The plugin class for the current Mitsuba variant."""
+    variant = mi.variant()
+    if variant not in _CLASSES:
+        _CLASSES[variant] = _make_class(mi.SamplingIntegrator)
+    return _CLASSES[variant]
+
+
+def __getattr__(name):
+    if name == "BDPTIntegrator":           # the class of the current variant
+        return integrator_class()
+    raise AttributeError("module %r has no attribute %r" % (__name__, name))
 
 
 def register() -> None:
-    mi.register_integrator("bdpt", lambda props: BDPTIntegrator(props))
+    """Register ``bdpt`` for the current variant."""
+    cls = integrator_class()
+    mi.register_integrator("bdpt", lambda props: cls(props))

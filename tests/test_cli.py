@@ -1,6 +1,8 @@
 """The ``bdpt`` command line, driven as a user would: ``python -m bdpt_drjit ...`` in
 a subprocess, on tiny images.  Also the EXR reader/writer (bdpt_drjit.exr)."""
+import contextlib
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -12,6 +14,7 @@ import numpy as np
 import pytest
 
 from bdpt_drjit.exr import read_exr, read_layers, write_exr, write_layers
+from bdpt_drjit.settings import PARAMS
 
 ROOT = Path(__file__).resolve().parent.parent
 CORNELL = str(ROOT / "scenes" / "cornell-box.xml")
@@ -32,14 +35,28 @@ SCENES = {
                     '</shape></scene>',
     "malformed.xml": '<scene version="3.0.0"><shape type="sphere"></scene>',
     "unknown-plugin.xml": '<scene version="3.0.0"><shape type="spherez"/></scene>',
+    "bad-bdpt.xml": '<scene version="3.0.0"><integrator type="bdpt"><string name="mis" '
+                    'value="nope"/></integrator>%s<shape type="sphere"><emitter type="area"/>'
+                    '</shape></scene>' % (_SENSOR % "perspective"),
+    "two-sensors.xml": '<scene version="3.0.0">%s%s<shape type="sphere"><emitter type="area"/>'
+                       '</shape></scene>' % (_SENSOR % "perspective", (_SENSOR % "perspective")
+                                             .replace('"8"/>', '"12"/>', 1)),
 }
 
 
-def run_cli(*args, cwd=None, env=None, timeout=180):
+def cli_env(env=None) -> dict:
+    """The environment of a CLI subprocess: it imports bdpt_drjit from this checkout
+    (not an installed copy, which a subprocess run elsewhere would find)."""
     full_env = dict(os.environ)
+    full_env["PYTHONPATH"] = os.pathsep.join(
+        [str(ROOT)] + [p for p in [os.environ.get("PYTHONPATH")] if p])
     full_env.update(env or {})
+    return full_env
+
+
+def run_cli(*args, cwd=None, env=None, timeout=180):
     return subprocess.run([sys.executable, "-m", "bdpt_drjit", *map(str, args)], cwd=cwd,
-                          env=full_env, capture_output=True, text=True, timeout=timeout)
+                          env=cli_env(env), capture_output=True, text=True, timeout=timeout)
 
 
 def ok(p):
@@ -78,7 +95,7 @@ def test_render_writes_exr_png_and_strategies(tmp_path):
     out = tmp_path / "out.exr"
     out.write_bytes(b"not an exr: must be overwritten")
     p = ok(run_cli("render", CORNELL, *TINY, "--spp", 8, "--seed", 5, "-o", out,
-                   "--strategies", cwd=tmp_path))
+                   "--strategy-images", cwd=tmp_path))
     img, meta = read_exr(out)
     assert img.shape == (16, 16, 3) and img.dtype == np.float32
     assert np.all(np.isfinite(img))
@@ -122,6 +139,39 @@ def test_render_settings_and_res(tmp_path):
     assert meta["hide_emitters"] == 1
 
 
+def test_renderer_options_come_from_params():
+    """Every integrator parameter is an option, with its choices, bounds and doc."""
+    text = " ".join(ok(run_cli("render", "--help")).stdout.split())
+    for p in PARAMS:
+        assert p.flag in text, p.flag
+        for choice in p.choices or ():
+            assert choice in text
+        assert " ".join(p.doc.replace("``", "").split()[:4]) in text, p.name
+
+
+def test_old_option_spellings_still_work_and_warn(tmp_path):
+    out = tmp_path / "old.exr"
+    p = ok(run_cli("render", CORNELL, *TINY, "--spp", 2, "--max-depth", 3, "--strategy-set",
+                   "pt", "--strategies", "-o", out))
+    warnings = [line for line in p.stderr.splitlines() if "deprecated" in line]
+    assert warnings == ["bdpt: warning: --strategy-set is deprecated; use --strategy-subset",
+                        "bdpt: warning: --strategies is deprecated; use --strategy-images"]
+    _, meta = read_exr(out)
+    assert meta["strategy_subset"] == "pt" and meta["light_image"] == 0
+    layers, _ = read_layers(tmp_path / "old.strategies.exr")
+    assert "s1t2" in layers and not [k for k in layers if k.endswith("t1")]
+
+
+def test_sensor_option(tmp_path, scenes):
+    """--sensor N renders the scene's N-th sensor (here 12x8; the first is 8x8)."""
+    out = tmp_path / "s1.exr"
+    ok(run_cli("render", scenes / "two-sensors.xml", "--spp", 1, "--sensor", 1, "-o", out))
+    img, meta = read_exr(out)
+    assert img.shape == (8, 12, 3) and meta["sensor"] == 1
+    p = ok(run_cli("info", scenes / "two-sensors.xml", "--sensor", 1))
+    assert "[1: rendered]" in p.stdout and "[0; --sensor 0 renders it]" in p.stdout
+
+
 def test_no_emitters_warns_and_renders_black(tmp_path):
     out = tmp_path / "black.exr"
     p = ok(run_cli("render", NO_EMITTERS, "-D", "resx=8", "-D", "resy=8", "--spp", 2, "-o", out))
@@ -131,16 +181,28 @@ def test_no_emitters_warns_and_renders_black(tmp_path):
 
 
 # -- progressive rendering --------------------------------------------------------------------
+@contextlib.contextmanager
+def background_render(out, *extra, stderr=subprocess.PIPE):
+    """A render of ~2000 passes (far longer than a test waits), killed if the test
+    leaves it running."""
+    proc = subprocess.Popen([sys.executable, "-m", "bdpt_drjit", "render", CORNELL, *TINY,
+                             "--spp", "4096", "--samples-per-pass", "2", "--max-depth", "3",
+                             "-o", str(out), *map(str, extra)],
+                            stdout=subprocess.PIPE, stderr=stderr, text=True, env=cli_env())
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_signal_stops_after_current_pass(tmp_path, sig):
     out = tmp_path / "int.exr"
-    spp, per_pass = 4096, 2               # ~2000 passes: far longer than the test waits
-    proc = subprocess.Popen([sys.executable, "-m", "bdpt_drjit", "render", CORNELL, *TINY,
-                             "--spp", str(spp), "--samples-per-pass", str(per_pass),
-                             "--max-depth", "3", "-o", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    spp, per_pass = 4096, 2
     lines = []
-    try:
+    with background_render(out) as proc:
         for line in proc.stderr:
             lines.append(line)
             if line.startswith("bdpt: [") and "passes" in line:
@@ -149,12 +211,8 @@ def test_signal_stops_after_current_pass(tmp_path, sig):
         assert "samples/s" in lines[-1] and "left" in lines[-1]
         proc.send_signal(sig)
         stdout, stderr = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     stderr = "".join(lines) + stderr
-    assert proc.returncode == 0, stderr
+    assert proc.returncode == 128 + sig, stderr      # 130 for SIGINT, 143 for SIGTERM
     assert "Traceback" not in stderr
     img, meta = read_exr(out)
     assert np.all(np.isfinite(img)) and img.mean() > 0
@@ -186,6 +244,78 @@ def test_time_and_checkpoint_use_many_passes(tmp_path):
                "--checkpoint", 0.01, "-o", out))
     _, meta = read_exr(out)
     assert meta["spp"] == 32 and meta["passes"] == 16 and meta["samples_per_pass"] == 2
+
+
+def _wait_until_importing(proc, library="drjit", timeout=60.0):
+    """Wait until ``proc`` has begun loading Dr.Jit's extension modules (on Linux: the
+    library appears in /proc/PID/maps), so that a delay after that hits the import,
+    not Python's own start-up (site-packages' .pth files, 50-100 ms here)."""
+    maps = Path("/proc/%d/maps" % proc.pid)
+    end = time.perf_counter() + timeout
+    while maps.exists() and time.perf_counter() < end and proc.poll() is None:
+        with contextlib.suppress(OSError):
+            if library in maps.read_text():
+                return
+        time.sleep(0.002)
+
+
+@pytest.mark.parametrize("delay, sig", [(0.0, signal.SIGINT), (0.05, signal.SIGINT),
+                                        (0.1, signal.SIGINT), (0.15, signal.SIGINT),
+                                        (0.2, signal.SIGINT), (0.3, signal.SIGINT),
+                                        (0.45, signal.SIGINT), (0.1, signal.SIGTERM)])
+def test_signal_while_starting(tmp_path, delay, sig):
+    """Ctrl-C or SIGTERM while Mitsuba is imported, the scene loaded or the first pass
+    compiled: one line and exit status 128 + signal, never a traceback or an abort."""
+    with background_render(tmp_path / "start.exr", "-q") as proc:
+        _wait_until_importing(proc)
+        time.sleep(delay)
+        proc.send_signal(sig)
+        _, stderr = proc.communicate(timeout=120)
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert proc.returncode == 128 + sig, stderr
+    assert len(lines) == 1 and lines[0].startswith("bdpt: interrupted (%s)" % sig.name), stderr
+
+
+def _wait_for(condition, what, timeout=60.0):
+    end = time.perf_counter() + timeout
+    while not condition():
+        assert time.perf_counter() < end, "timed out waiting for " + what
+        time.sleep(0.02)
+
+
+@pytest.mark.parametrize("restore", [True, False], ids=["checkpoint-fails", "final-write-fails"])
+def test_failed_write(tmp_path, restore):
+    """A checkpoint that cannot be written (here: the output became a directory, so
+    the atomic rename fails) is one warning and rendering goes on; if the final write
+    fails too, the exit status says so, in one line."""
+    out, log = tmp_path / "ck.exr", tmp_path / "stderr.txt"
+    with open(log, "w") as err, background_render(out, "--checkpoint", "0.05", "-q",
+                                                  stderr=err) as proc:
+        _wait_for(lambda: out.exists() or proc.poll() is not None, "the first checkpoint")
+        while not out.is_dir():          # a checkpoint may land between the two steps
+            with contextlib.suppress(FileNotFoundError, FileExistsError):
+                out.unlink()
+                out.mkdir()
+        _wait_for(lambda: "not saved" in log.read_text() or proc.poll() is not None,
+                  "a failed checkpoint")
+        if restore:
+            out.rmdir()
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=120)
+    stderr = log.read_text()
+    assert "Traceback" not in stderr
+    warnings = [line for line in stderr.splitlines()
+                if line.startswith("bdpt: warning: checkpoint")]
+    assert len(warnings) == 1, stderr         # said once while the problem lasts
+    assert "cannot write %s" % out in warnings[0] and "rendering goes on" in warnings[0]
+    if restore:
+        assert proc.returncode == 130, stderr
+        img, meta = read_exr(out)
+        assert meta["spp"] > 0 and np.all(np.isfinite(img))
+    else:
+        assert proc.returncode == 1, stderr
+        errors = [line for line in stderr.splitlines() if line.startswith("bdpt: error:")]
+        assert len(errors) == 1 and "cannot write %s" % out in errors[0], stderr
 
 
 # -- merge ----------------------------------------------------------------------------------
@@ -266,6 +396,21 @@ BAD = [
     ("output parent is a file", ["render", CORNELL, *TINY, "-o", "{tmp}/scenes/ortho.xml/out.exr"],
      ["cannot write"]),
     ("info missing scene", ["info", "no-such-scene.xml"], ["not found"]),
+    ("info missing image", ["info", "no-such-image.exr"], ["no-such-image.exr", "not found"]),
+    ("bad bdpt parameter in the scene", ["render", "{scenes}/bad-bdpt.xml"],
+     ["bad-bdpt.xml", "heuristic 'nope'", "choose one of"]),
+    ("technique past max_depth", ["render", CORNELL, *TINY, "--technique", "9,9"],
+     ["technique 9,9", "max_depth 8", "black"]),
+    ("light-tracing technique outside pt",
+     ["render", CORNELL, *TINY, "--technique", "2,1", "--strategy-subset", "pt"],
+     ["technique 2,1", "strategy_subset 'pt'"]),
+    ("rr_depth 0", ["render", CORNELL, *TINY, "--rr-depth", "0"], ["--rr-depth", "positive"]),
+    ("memory budget too small", ["render", CORNELL, *TINY, "--memory-budget", "1K"],
+     ["--memory-budget", "1 MiB"]),
+    ("sensor out of range", ["render", CORNELL, *TINY, "--sensor", "1"],
+     ["--sensor 1", "1 sensor"]),
+    ("info sensor out of range", ["info", "{scenes}/two-sensors.xml", "--sensor", "2"],
+     ["--sensor 2", "2 sensors"]),
     ("unknown command option", ["render", "--frobnicate"], ["--frobnicate"]),
 ]
 
@@ -275,8 +420,10 @@ def test_bad_input(tmp_path, scenes, args, words):
     args = [a.format(scenes=scenes, tmp=tmp_path) for a in args]
     if args[0] == "render" and "-o" not in args:
         args += ["-o", str(tmp_path / "out.exr")]
-    clean_error(run_cli(*args, cwd=tmp_path), *words)
+    error = clean_error(run_cli(*args, cwd=tmp_path), *words)
     assert written(tmp_path) == [], "files were written: %s" % written(tmp_path)
+    if "2,1" in args:          # the user never set light_image: not blamed
+        assert "light_image" not in error, error
 
 
 @pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="root can write anywhere")
@@ -331,13 +478,33 @@ def test_info(scenes):
     assert "black" in p.stdout
 
 
+def test_info_of_an_image(tmp_path):
+    """``bdpt info out.exr`` shows the render's header, as pbrt's imgtool info does."""
+    out = tmp_path / "r.exr"
+    ok(run_cli("render", CORNELL, *TINY, "--spp", 2, "--seed", 7, "--mis", "balance",
+               "--strategy-images", "-o", out))
+    text = ok(run_cli("info", out)).stdout
+    fields = dict(re.findall(r"^(\w+):\s+(.*)$", text, re.M))
+    assert fields["size"] == "16x16" and fields["channels"] == "R, G, B"
+    assert fields["spp"] == "2" and fields["seed"] == "7" and fields["mis"] == "balance"
+    assert fields["scene"].endswith("cornell-box.xml") and float(fields["render_time"]) > 0
+    assert fields["max_depth"] == "8" and fields["technique"] == "all"
+    layers = ok(run_cli("info", tmp_path / "r.strategies.exr")).stdout
+    assert "s1t2" in layers and "seed:" in layers
+    write_exr(tmp_path / "plain.exr", np.ones((4, 6, 3), np.float32))
+    assert "nothing from bdpt" in ok(run_cli("info", tmp_path / "plain.exr")).stdout
+    (tmp_path / "junk.exr").write_text("junk")
+    clean_error(run_cli("info", tmp_path / "junk.exr"), "junk.exr", "OpenEXR")
+
+
 def test_console_script_and_help():
     exe = shutil.which("bdpt")
     if exe is None:
         pytest.skip("the bdpt console script is not installed (pip install -e .)")
-    p = subprocess.run([exe, "render", "--help"], capture_output=True, text=True, timeout=60)
-    assert p.returncode == 0 and "--spp" in p.stdout and "--strategies" in p.stdout
-    p = subprocess.run([exe], capture_output=True, text=True, timeout=60)
+    p = subprocess.run([exe, "render", "--help"], capture_output=True, text=True, timeout=60,
+                       env=cli_env())
+    assert p.returncode == 0 and "--spp" in p.stdout and "--strategy-images" in p.stdout
+    p = subprocess.run([exe], capture_output=True, text=True, timeout=60, env=cli_env())
     assert p.returncode != 0 and "Traceback" not in p.stderr
 
 

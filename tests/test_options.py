@@ -80,6 +80,98 @@ def test_bad_settings(box):
         mi.load_dict({"type": "bdpt", "maxdepth": 3})
 
 
+# -- a good Mitsuba citizen --------------------------------------------------------------
+def test_seed_as_mitsuba_passes_it(box):
+    """mi.render types seed as mi.UInt32 (Mitsuba's path accepts one); a Dr.Jit array
+    of size 1 and a plain int give the same image."""
+    integ = mi.load_dict({"type": "bdpt", "max_depth": 3})
+    ref = np.array(mi.render(box, integrator=integ, spp=2, seed=3))
+    for seed in (mi.UInt32(3), dr.llvm.UInt32(3), np.uint32(3)):
+        img = np.array(mi.render(box, integrator=integ, spp=2, seed=seed))
+        np.testing.assert_allclose(img, ref, rtol=1e-5, atol=1e-7, err_msg=repr(type(seed)))
+    with pytest.raises(ValueError, match="single value"):
+        integ.render(box, box.sensors()[0], seed=mi.UInt32([1, 2]), spp=1)
+
+
+@pytest.mark.parametrize("nesting", [{"type": "aov", "aovs": "dd.y:depth", "img": {"type": "bdpt"}},
+                                     {"type": "moment", "nested": {"type": "bdpt"}}],
+                         ids=["aov", "moment"])
+def test_nesting_is_refused_in_one_sentence(box, nesting):
+    """aov and moment evaluate their nested integrator one camera ray at a time
+    (``sample``), which BDPT cannot do: the error says so, first."""
+    integ = mi.load_dict(nesting)
+    with pytest.raises(NotImplementedError) as e:
+        integ.render(box, box.sensors()[0], seed=0, spp=1)
+    assert str(e.value).startswith("bdpt: cannot be nested in another integrator")
+    # mi.render wraps every integrator error (Dr.Jit's custom op); ours is the cause.
+    with pytest.raises(RuntimeError) as e:
+        mi.render(box, integrator=integ, spp=1)
+    assert isinstance(e.value.__cause__ or e.value.__context__, NotImplementedError)
+
+
+def test_gradients_are_refused_clearly():
+    """Until gradients are supported: dr.backward / dr.forward through a bdpt render
+    raise NotImplementedError saying so, and bdpt's own images are not attached."""
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=8, resy=8)
+    params = mi.traverse(scene)
+    key = next(k for k in params.keys() if k.endswith("reflectance.value"))
+    dr.enable_grad(params[key])
+    params.update()
+    integ = mi.load_dict({"type": "bdpt", "max_depth": 2})
+    assert not dr.grad_enabled(integ.render(scene, scene.sensors()[0], seed=0, spp=1))
+    assert not dr.grad_enabled(bdpt_drjit.render(scene, spp=1, max_depth=2).tensor)
+    img = mi.render(scene, params=params, integrator=integ, spp=1)
+    with pytest.raises(NotImplementedError, match="bdpt: gradients are not supported"):
+        dr.backward(img)
+    img = mi.render(scene, params=params, integrator=integ, spp=1)
+    dr.set_grad(params[key], 1.0)
+    with pytest.raises(NotImplementedError, match="bdpt: gradients are not supported"):
+        dr.forward(params[key])
+
+
+_SWITCH_VARIANT = r"""
+import sys, mitsuba as mi
+mi.set_variant("llvm_ad_rgb")
+import bdpt_drjit
+for variant in ("llvm_ad_mono", "llvm_ad_rgb"):
+    mi.set_variant(variant)
+    scene = mi.load_file(sys.argv[1], resx=8, resy=8)
+    img = mi.render(scene, integrator=mi.load_dict({"type": "bdpt", "max_depth": 2}), spp=2)
+    print(variant, img.shape)
+"""
+
+
+def test_variant_switch_after_import():
+    """"bdpt" follows mi.set_variant (a variant callback), with a plugin class of the
+    variant's own (mi.render asserts that the integrator is one of its variant)."""
+    import os
+    import subprocess
+    import sys
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]))
+    p = subprocess.run([sys.executable, "-c", _SWITCH_VARIANT, scene_path("cornell-box.xml")],
+                       capture_output=True, text=True, timeout=300, env=env)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "llvm_ad_mono (8, 8, 1)" in p.stdout and "llvm_ad_rgb (8, 8, 3)" in p.stdout
+
+
+def test_sensor_index_out_of_range(box):
+    with pytest.raises(ValueError, match=r"sensor index 1 is out of range: the scene has 1 sensor"):
+        bdpt_drjit.render(box, spp=1, sensor=1)
+
+
+def test_load_errors_name_the_cause():
+    """Mitsuba wraps an exception raised by a Python plugin's constructor: its own
+    location, then the Python traceback, then the exception.  Ours is one line that
+    starts with the cause."""
+    with pytest.raises(RuntimeError) as e:
+        mi.load_dict({"type": "bdpt", "mis": "nope"})
+    text = str(e.value)
+    assert text.splitlines()[0].endswith("Traceback (most recent call last):")  # Mitsuba's
+    assert text.splitlines()[-1] == ("ValueError: bdpt: unknown heuristic 'nope' for mis "
+                                     "(choose one of power, balance, uniform, lafortune)")
+
+
 def _scene(emitter=None, sensor="perspective"):
     d = {"type": "scene",
          "floor": {"type": "rectangle", "bsdf": {"type": "diffuse"}},
