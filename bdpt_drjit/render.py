@@ -173,7 +173,8 @@ class Renderer:
         self.plan = plan_passes(self.spp, self.pixels, max_lanes, self.settings.samples_per_pass,
                                 self._accepted_count)
         self.film = FilmAccumulator(film, coalesce=self.spp >= 4, layers=layers)
-        self.spp_done = self.passes_done = 0
+        self.passes_done = 0
+        self.spp_done = 0.0           # samples per pixel rendered (fractional: pixel ranges)
         self.time = 0.0
         self.rays = 0
         self._last_lanes = 0
@@ -188,50 +189,63 @@ class Renderer:
     def done(self) -> bool:
         return self.passes_done >= len(self.plan)
 
+    @property
+    def at_round_end(self) -> bool:
+        """Every pixel has had the same number of camera samples, so the image is
+        unbiased here.  Only a very large film, split into pixel ranges, is ever
+        between rounds: a stop there would leave pixels with the light image alone."""
+        return abs(self.spp_done - round(self.spp_done)) < 1e-6
+
     def run_pass(self) -> None:
-        if self.done:
-            return
-        pixel_offset, n_pixels, spp = self.plan[self.passes_done]
+        """Render the next pass of the plan."""
+        if not self.done:
+            self.render_pass(self.passes_done)
+
+    def render_pass(self, index: int) -> None:
+        """Render pass ``index`` of the plan into the film.  A pass's samples depend
+        only on the seed and its index, so passes may run in any order, or on
+        different machines whose raw film sums are added (cluster.py)."""
+        pixel_offset, n_pixels, spp = self.plan[index]
         lanes = n_pixels * spp
-        if self.passes_done and lanes != self._last_lanes:
+        if self._last_lanes and lanes != self._last_lanes:
             # Buffers cached for the previous size would sit beside this pass's.
             dr.flush_malloc_cache()
         self._last_lanes = lanes
         start = time.perf_counter()
         with dr.suspend_grad():
-            self._render_pass(pixel_offset, n_pixels, spp, lanes)
+            self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
         self.time += time.perf_counter() - start
         self.passes_done += 1
-        self.spp_done = sum(p[1] * p[2] for p in self.plan[:self.passes_done]) // self.pixels
+        self.spp_done += n_pixels * spp / self.pixels
 
     # -- one pass -----------------------------------------------------------------------
-    def _sampler(self, stream: int, lanes: int, spp: int) -> mi.Sampler:
+    def _sampler(self, index: int, stream: int, lanes: int, spp: int) -> mi.Sampler:
         sampler = self.sensor.sampler().clone()
         sampler.set_sample_count(spp)
         sampler.set_samples_per_wavefront(spp)
-        sampler.seed(_mix_seed(self.seed, self.passes_done, stream), lanes)
+        sampler.seed(_mix_seed(self.seed, index, stream), lanes)
         return sampler
 
-    def _context(self, rays, sampler, lanes: int, spp: int) -> PassContext:
+    def _context(self, index, rays, sampler, lanes: int, spp: int) -> PassContext:
         images = StrategyImages(self.strategies, lanes) if self.strategy_images else None
         return PassContext(
             scene=self.scene, camera=self.camera, settings=self.settings,
             strategies=self.strategies, weights=self.weights, emitters=self.emitters,
-            camera_sampler=sampler, light_sampler=self._sampler(1, lanes, spp),
+            camera_sampler=sampler, light_sampler=self._sampler(index, 1, lanes, spp),
             lane=dr.arange(mi.UInt32, lanes), time=rays.ray.time,
             wavelengths=rays.ray.wavelengths, camera_weight=rays.weight,
             light_ratio=dr.opaque(mi.Float, 1.0), images=images)
 
-    def _render_pass(self, pixel_offset, n_pixels, spp, lanes):
+    def _render_pass(self, index, pixel_offset, n_pixels, spp, lanes):
         # Stage 1: camera rays.
-        sampler = self._sampler(0, lanes, spp)
+        sampler = self._sampler(index, 0, lanes, spp)
         rays = self.camera.sample_rays(sampler, pixel_offset, n_pixels, spp)
         sampler.schedule_state()
         dr.eval(rays)
-        ctx = self._context(rays, sampler, lanes, spp)
+        ctx = self._context(index, rays, sampler, lanes, spp)
 
         # Stage 2: light subpaths: stored light vertices and t = 1 splats.
-        store, light_rays = self._light_subpaths(ctx, lanes, spp)
+        store, light_rays = self._light_subpaths(ctx, index, lanes, spp)
 
         # Stage 3: camera subpaths, with every strategy t >= 2.
         cam = trace_camera_subpaths(ctx, rays, store)
@@ -246,7 +260,7 @@ class Renderer:
         self.film.light_paths += lanes
         self.rays += int(dr.sum(cam.rays + light_rays)[0])
 
-    def _light_subpaths(self, ctx, lanes: int, spp: int):
+    def _light_subpaths(self, ctx, index: int, lanes: int, spp: int):
         """Stage 2; runs the light walk again with larger pools if one overflowed
         (nothing has reached the film yet, and the sampler is seeded the same)."""
         max_i = self.strategies.max_light_vertices()
@@ -261,7 +275,7 @@ class Renderer:
                 return store, light_rays
             per_lane[0] = max(per_lane[0], -(-store.vertices.size() * 5 // (4 * lanes)))
             per_lane[1] = max(per_lane[1], -(-store.splats.size() * 5 // (4 * lanes)))
-            ctx.light_sampler = self._sampler(1, lanes, spp)
+            ctx.light_sampler = self._sampler(index, 1, lanes, spp)
 
     # -- results -------------------------------------------------------------------
     def tensor(self) -> mi.TensorXf:
@@ -273,7 +287,7 @@ class Renderer:
         return RenderResult(image=tensor.numpy(), tensor=tensor,
                             strategy_images={k: v.numpy() for k, v in layers.items() if k[0] != "k"},
                             length_images={k[1]: v.numpy() for k, v in layers.items() if k[0] == "k"},
-                            spp=self.spp_done, passes=self.passes_done, time=self.time,
+                            spp=int(self.spp_done + 1e-9), passes=self.passes_done, time=self.time,
                             rays=self.rays,
                             stats={"pixels": self.pixels,
                                    "lanes_per_pass": max(p[1] * p[2] for p in self.plan),

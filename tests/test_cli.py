@@ -237,6 +237,22 @@ def test_time_budget(tmp_path):
     assert elapsed < 60
 
 
+def test_time_budget_on_a_film_split_in_pixel_ranges(tmp_path):
+    """A film too large for one pass at 1 spp is rendered in pixel ranges; a time
+    budget (or a checkpoint) must never leave pixels without camera samples: the
+    render stops at the end of a round, with spp >= 1, and equals a 1-spp render."""
+    small = ["--memory-budget", "1M", "-D", "resx=64", "-D", "resy=64", "--max-depth", 3]
+    timed, full = tmp_path / "timed.exr", tmp_path / "one.exr"
+    p = ok(run_cli("render", CORNELL, *small, "--spp", 8, "--time", 0.001,
+                   "--checkpoint", 0.001, "-o", timed))
+    ok(run_cli("render", CORNELL, *small, "--spp", 1, "-o", full))
+    img, meta = read_exr(timed)
+    ref, ref_meta = read_exr(full)
+    assert meta["passes"] == ref_meta["passes"] > 1           # one round of pixel ranges
+    assert meta["spp"] == 1 and "time budget" in p.stderr
+    np.testing.assert_allclose(img, ref, rtol=1e-5, atol=1e-6)
+
+
 def test_time_and_checkpoint_use_many_passes(tmp_path):
     out = tmp_path / "ck.exr"
     # --time / --checkpoint without --samples-per-pass: spp/16 per pass.

@@ -134,7 +134,10 @@ def _render_loop(renderer, args, stop, save) -> tuple:
     """Run passes until done, stopped (signal, time budget); checkpoint on the way.
     Returns why it stopped early (or None) and the time it took."""
     progress = Progress(renderer, budget=args.time, enabled=not args.quiet)
-    stop.announce = None if args.quiet else "stopping after the current pass"
+    stop.announce = None if args.quiet else (
+        "stopping after the current pass" if renderer.at_round_end and len(
+            {p[1] for p in renderer.plan}) == 1 and renderer.plan[0][1] == renderer.pixels
+        else "stopping once every pixel has its samples of this round")
     t0 = last_checkpoint = time.perf_counter()
     reason = None
     while not renderer.done:
@@ -143,6 +146,8 @@ def _render_loop(renderer, args, stop, save) -> tuple:
         progress.update(now - t0)
         if renderer.done:
             break
+        if not renderer.at_round_end:
+            continue          # stops and checkpoints wait for every pixel's samples
         if stop.signal is not None:
             reason = "interrupted"
         elif args.time is not None and now - t0 >= args.time:
