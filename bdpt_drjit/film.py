@@ -7,8 +7,11 @@ by the weight channel, so they need separate image blocks:
   at the sample's film position with weight 1 (normalized per pixel by develop),
   with alpha 1 where the camera ray hit a surface;
 * light-tracing strategies (t = 1): splatted wherever the light vertex projects,
-  with weight 0 and alpha 0, and normalized at the end by W*H / (number of light
-  paths) -- the same normalization as Mitsuba's ``ptracer``.
+  with weight 0 and alpha 0.  A pass of N_C camera samples and N_L light subpaths
+  splats its values times N_C / N_L, and the light block is normalized at the end by
+  W*H / (camera samples): with N_L = N_C this is Mitsuba's ``ptracer``
+  normalization, and passes with different budgets combine as their camera samples
+  do.
 
 These puts run after the walks, in kernels of their own, so that the walks'
 kernels never hold the film's size.  Per-strategy images (on request) have a layer
@@ -39,7 +42,7 @@ class FilmAccumulator:
                              if t != 1}
         self.layer_light = {i: self._splat_block() for i, (s, t) in enumerate(self.layers)
                             if t == 1 or s == "k"}
-        self.light_paths = 0            # total number of light subpaths traced
+        self.camera_samples = 0         # the light image's normalization (see above)
         self.crop_pixels = int(dr.prod(film.crop_size()))
 
     def _splat_block(self) -> mi.ImageBlock:
@@ -58,21 +61,25 @@ class FilmAccumulator:
             value = dr.gather(mi.Spectrum, images, dr.arange(mi.UInt32, lanes) + offset)
             block.put(rays.pos, rays.ray.wavelengths, value, 0.0, 0.0)
 
-    def put_splats(self, splats, count: int, wavelengths, layer_of=None):
-        """The light image's splats of a pass (``splats``: the pool's items)."""
+    def put_splats(self, splats, count: int, wavelengths, scale: float, layer_of=None):
+        """The light image's splats of a pass (``splats``: the pool's items), times
+        ``scale`` = N_C / N_L of the pass.  Light subpath l has the wavelengths of
+        camera lane l mod N_C."""
         active = dr.arange(mi.UInt32, dr.width(splats.s)) < dr.opaque(mi.UInt32, count)
         pos = splats.pos + mi.Vector2f(self.light.offset())
-        wl = dr.gather(type(wavelengths), wavelengths, splats.lane, active)
-        self.light.put(pos, wl, splats.value, 0.0, 0.0, active)
+        home = splats.lane % dr.opaque(mi.UInt32, dr.width(wavelengths))
+        wl = dr.gather(type(wavelengths), wavelengths, home, active)
+        value = splats.value * dr.opaque(mi.Float, scale)
+        self.light.put(pos, wl, value, 0.0, 0.0, active)
         for index, block in self.layer_light.items():
             mine = active & (layer_of(splats.s) == dr.opaque(mi.Int32, index))
-            block.put(pos, wl, splats.value, 0.0, 0.0, mine)
+            block.put(pos, wl, value, 0.0, 0.0, mine)
 
     # -- raw sums (cluster rendering) ------------------------------------------------------
     def raw(self) -> dict:
         """The undeveloped sums: camera and light blocks (and layers), light paths."""
         out = {"camera": np.array(self.camera.tensor()), "light": np.array(self.light.tensor()),
-               "light_paths": self.light_paths}
+               "camera_samples": self.camera_samples}
         for kind, blocks in (("camera", self.layer_camera), ("light", self.layer_light)):
             for index, block in blocks.items():
                 out["layer:%d:%s" % (index, kind)] = np.array(block.tensor())
@@ -85,7 +92,7 @@ class FilmAccumulator:
     def clear(self) -> None:
         for block in self.blocks():
             block.clear()
-        self.light_paths = 0
+        self.camera_samples = 0
 
     # -- developing ----------------------------------------------------------------
     def _develop(self, block: mi.ImageBlock) -> mi.TensorXf:
@@ -96,7 +103,7 @@ class FilmAccumulator:
         return img
 
     def _light_scale(self) -> mi.Float:
-        return dr.opaque(mi.Float, self.crop_pixels / max(self.light_paths, 1))
+        return dr.opaque(mi.Float, self.crop_pixels / max(self.camera_samples, 1))
 
     def develop(self) -> mi.TensorXf:
         """The image: the camera block developed, plus the light block scaled; the

@@ -17,6 +17,17 @@ z_0..z_{t-1}; z_0 is the pinhole, y_0 a point on an emitter.  Pdf names carry th
 measure: ``*_pdf_w`` solid angle, ``*_pdf_a`` area.  All "cos" are geometric-normal
 cosines (they convert solid angle to area, Veach eq. 8.10).
 
+Strategies may be sampled at different rates (Veach's n_i in eq. 9.10; the budgets
+of efficiency-aware MIS, Grittmann et al. 2022): the light image with N_L light
+subpaths per N_C camera samples, and connections with a density factor kappa (0:
+off; 1: each camera vertex to every vertex of one light subpath; M N_L / V: M
+vertices drawn from a pool of V, Davidovic et al. 2014).  A strategy j of density
+m_j p_j has weight h(m_j p_j) / sum_i h(m_i p_i).  In the chains, N_L / N_C enters
+at the camera's start (``camera_start``); kappa multiplies every connection term
+as it joins a chain (``after_scatter``'s and the weights' ``m_vcm``: d_vcm at a
+subpath's first vertex stands for s = 1 or t = 1, beyond it for a connection) and
+divides the rivals of a connection (``weight_connect``'s ``m_self``).
+
 Consistency rules that make the weights of all strategies of a path sum to one
 (checked by tests/test_mis.py against a brute-force evaluation):
   * Russian roulette is left out of every pdf (the weights are then functions of the
@@ -129,15 +140,17 @@ def after_hit(h: Heuristic, d_vcm, d_vc, dist2, cos_hit):
     return d_vcm * h(dist2) * inv_cos, d_vc * inv_cos
 
 
-def after_scatter(h: Heuristic, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta):
+def after_scatter(h: Heuristic, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta,
+                  m_vcm=1.0):
     """Account for the direction sampled at the current vertex (tech. rep. eqs. 35-36).
 
     ``pdf_fwd_w``: density of the sampled direction; ``pdf_rev_w``: density of the
     reverse direction, i.e. of sampling where the subpath came from, had it arrived
     from the new direction.  A delta lobe's pdfs cancel: d_vcm = 0 forbids
     connecting at this vertex and d_vc only picks up the cosine (section 6.1).
+    ``m_vcm``: the rate of the strategy d_vcm stands for (module docstring).
     """
-    d_vc_smooth = h(_div(cos_out, pdf_fwd_w)) * (d_vc * h(pdf_rev_w) + d_vcm)
+    d_vc_smooth = h(_div(cos_out, pdf_fwd_w)) * (d_vc * h(pdf_rev_w) + h(m_vcm) * d_vcm)
     d_vcm_smooth = h(_div(1.0, pdf_fwd_w))
     return (dr.select(delta, 0.0, d_vcm_smooth),
             dr.select(delta, d_vc * h(cos_out), d_vc_smooth))
@@ -159,7 +172,7 @@ def weight_emission_hit(h: Heuristic, d_vcm, d_vc, direct_pdf_a, emission_pdf):
 
 
 def weight_nee(h: Heuristic, d_vcm, d_vc, bsdf_pdf_w, nee_pdf_w, emission_pdf,
-               cos_cam, cos_light, bsdf_rev_w):
+               cos_cam, cos_light, bsdf_rev_w, m_vcm=1.0):
     """s = 1: next-event estimation at camera vertex z_{t-1} (tech. rep. eqs. 44-45).
 
     ``bsdf_pdf_w``: density of the camera vertex's BSDF sampling the light direction
@@ -169,18 +182,18 @@ def weight_nee(h: Heuristic, d_vcm, d_vc, bsdf_pdf_w, nee_pdf_w, emission_pdf,
     """
     w_light = h(_div(bsdf_pdf_w, nee_pdf_w))
     w_camera = h(_div(emission_pdf * cos_cam, nee_pdf_w * cos_light)) * (
-        d_vcm + d_vc * h(bsdf_rev_w))
+        h(m_vcm) * d_vcm + d_vc * h(bsdf_rev_w))
     return _weight(w_light + 1.0 + w_camera)
 
 
-def weight_light_to_camera(h: Heuristic, d_vcm, d_vc, cam_pdf_a, bsdf_rev_w):
+def weight_light_to_camera(h: Heuristic, d_vcm, d_vc, cam_pdf_a, bsdf_rev_w, m_vcm=1.0):
     """t = 1, s >= 2: light vertex y_{s-1} splatted through the pinhole (eq. 46).
 
     ``cam_pdf_a``: the camera's area density at the light vertex, already scaled by
     N_C / N_L (see ``camera_start``).  ``bsdf_rev_w``: density at y_{s-1} of sampling
     the direction back to y_{s-2} had the path arrived from the camera.
     """
-    return _weight(1.0 + h(cam_pdf_a) * (d_vcm + d_vc * h(bsdf_rev_w)))
+    return _weight(1.0 + h(cam_pdf_a) * (h(m_vcm) * d_vcm + d_vc * h(bsdf_rev_w)))
 
 
 def weight_emitter_to_camera(h: Heuristic, cam_pdf_a, emission_pos_pdf_a):
@@ -192,17 +205,18 @@ def weight_emitter_to_camera(h: Heuristic, cam_pdf_a, emission_pos_pdf_a):
 
 
 def weight_connect(h: Heuristic, light_d_vcm, light_d_vc, cam_d_vcm, cam_d_vc,
-                   cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w):
+                   cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w,
+                   m_light_vcm=1.0, m_cam_vcm=1.0, m_self=1.0):
     """s >= 2, t >= 2: connect y_{s-1} to z_{t-1} by a shadow ray (eqs. 40, 47).
 
     ``cam_bsdf_pdf_a``: density of z_{t-1}'s BSDF sampling y_{s-1} (area measure at
     y_{s-1}); ``light_bsdf_pdf_a`` likewise from y_{s-1} to z_{t-1}.  The ``*_rev_w``
     are each vertex's density of sampling its own predecessor had it arrived along
-    the connecting edge.
+    the connecting edge.  ``m_self``: the connection's own rate (kappa).
     """
-    w_light = h(cam_bsdf_pdf_a) * (light_d_vcm + light_d_vc * h(light_bsdf_rev_w))
-    w_camera = h(light_bsdf_pdf_a) * (cam_d_vcm + cam_d_vc * h(cam_bsdf_rev_w))
-    return _weight(w_light + 1.0 + w_camera)
+    w_light = h(cam_bsdf_pdf_a) * (h(m_light_vcm) * light_d_vcm + light_d_vc * h(light_bsdf_rev_w))
+    w_camera = h(light_bsdf_pdf_a) * (h(m_cam_vcm) * cam_d_vcm + cam_d_vc * h(cam_bsdf_rev_w))
+    return _weight(1.0 + _div(w_light + w_camera, h(m_self)))
 
 
 # ---------------------------------------------------------------------------
@@ -251,8 +265,9 @@ class Weights:
 
     * no MIS for a single technique or the light-tracing subset (one strategy per
       path length): every weight is 1;
-    * the path-tracing subset: s = 0 and s = 1 are each other's only rivals, so
-      the camera chains' light-subpath terms are dropped (d_vc, d_vcm = 0);
+    * the rates of the light image (N_L / N_C) and of connections (kappa) of the
+      pass (``set_rates``; the module docstring): the path-tracing subset is the
+      rates 0 and 0, s = 0 and s = 1 then being each other's only rivals;
     * (1,1), the emitter seen through the pinhole, is the only rival of (0,2);
     * Lafortune & Willems' weights, which use no densities at all.
     """
@@ -261,13 +276,23 @@ class Weights:
         self.h = Heuristic(heuristic)
         self.on = strategies.use_mis
         self.lafortune = self.on and self.h.is_lafortune
-        self.pt_only = strategies.pt_only
         self.rival_11 = bool(strategies.enabled(1, 1))
         self.light_image = strategies.light_image
+        self.set_rates(1.0, 1.0)
+
+    def set_rates(self, light_ratio: float, kappa: float) -> None:
+        """This pass's N_L / N_C and connection rate (opaque: no kernel per value)."""
+        self.light_ratio = dr.opaque(mi.Float, light_ratio)
+        self.kappa = dr.opaque(mi.Float, kappa)
+
+    def rate(self, depth):
+        """The rate of the strategy that d_vcm stands for at a subpath's vertex of this
+        depth: s = 1 or t = 1 at the first vertex, a connection beyond it."""
+        return dr.select(depth == 1, 1.0, self.kappa)
 
     # -- the chains along a subpath (see the functions above) ------------------------
-    def camera_start(self, cam_pdf_w, light_ratio):
-        return camera_start(self.h, cam_pdf_w, light_ratio, self.light_image)
+    def camera_start(self, cam_pdf_w):
+        return camera_start(self.h, cam_pdf_w, self.light_ratio, self.light_image)
 
     def light_start(self, emission_pdf_aw, cos_emit, delta):
         return light_start(self.h, emission_pdf_aw, cos_emit, delta)
@@ -275,15 +300,15 @@ class Weights:
     def after_hit(self, d_vcm, d_vc, dist2, cos_hit):
         return after_hit(self.h, d_vcm, d_vc, dist2, cos_hit)
 
-    def after_scatter(self, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta):
-        return after_scatter(self.h, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta)
+    def after_scatter(self, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta, depth):
+        return after_scatter(self.h, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta,
+                             self.rate(depth))
 
     @staticmethod
     def specularity(bsdf_flags, delta_sampled=False):
         return lafortune_specularity(bsdf_flags, delta_sampled)
 
     # -- the weights of the strategies ---------------------------------------------
-
     def emission_hit(self, d_vcm, d_vc, lw, from_pinhole, nee_pdf_a, pos_pdf_a, emission_pdf_aw):
         """s = 0 at an area emitter.  The rival s = 1 strategy picks the hit point by
         next-event estimation from the previous camera vertex (``nee_pdf_a``), or,
@@ -294,8 +319,7 @@ class Weights:
             return weight_lafortune(lw, None, "hit")
         rival = pos_pdf_a if self.rival_11 else 0.0
         direct_pdf_a = dr.select(from_pinhole, rival, nee_pdf_a)
-        return weight_emission_hit(self.h, d_vcm, 0.0 if self.pt_only else d_vc,
-                                   direct_pdf_a, emission_pdf_aw)
+        return weight_emission_hit(self.h, d_vcm, d_vc, direct_pdf_a, emission_pdf_aw)
 
     def environment_hit(self, d_vcm, d_vc, lw, from_pinhole, nee_pdf_w, emission_pdf_aw):
         """s = 0 on a ray that escaped: the chains as the last scatter left them, and
@@ -306,8 +330,7 @@ class Weights:
             return mi.Float(1.0)
         if self.lafortune:
             return weight_lafortune(lw, None, "hit")
-        w = weight_emission_hit(self.h, d_vcm, 0.0 if self.pt_only else d_vc,
-                                nee_pdf_w, emission_pdf_aw)
+        w = weight_emission_hit(self.h, d_vcm, d_vc, nee_pdf_w, emission_pdf_aw)
         return dr.select(from_pinhole, 1.0, w)
 
     @staticmethod
@@ -321,39 +344,43 @@ class Weights:
         pdf = dr.select(ds.delta, ds.pdf * dr.square(ds.dist), pdf_emitter_direction_w)
         return dr.select(directional, ds.pdf, pdf)
 
-    def nee(self, d_vcm, d_vc, lw, specularity, delta_light, bsdf_pdf_w, nee_pdf_w,
+    def nee(self, d_vcm, d_vc, lw, depth, specularity, delta_light, bsdf_pdf_w, nee_pdf_w,
             emission_pdf_aw, cos_cam, cos_light, bsdf_rev_w):
-        """s = 1 at camera vertex z_{t-1}; a delta light cannot be hit (s = 0)."""
+        """s = 1 at camera vertex z_{t-1} (t - 1 = ``depth``); a delta light cannot be
+        hit (s = 0)."""
         if not self.on:
             return mi.Float(1.0)
         if self.lafortune:
             return weight_lafortune(lw, specularity, "nee", delta_light)
-        if self.pt_only:             # rivals: the emitter hit only
-            d_vcm, d_vc = 0.0, 0.0
         return weight_nee(self.h, d_vcm, d_vc, dr.select(delta_light, 0.0, bsdf_pdf_w),
-                          nee_pdf_w, emission_pdf_aw, cos_cam, cos_light, bsdf_rev_w)
+                          nee_pdf_w, emission_pdf_aw, cos_cam, cos_light, bsdf_rev_w,
+                          self.rate(depth))
 
-    def light_to_camera(self, d_vcm, d_vc, cam_pdf_a, bsdf_rev_w):
-        """t = 1, s >= 2 (``cam_pdf_a`` already scaled by N_C / N_L)."""
+    def light_to_camera(self, d_vcm, d_vc, depth, cam_pdf_a, bsdf_rev_w):
+        """t = 1 at light vertex y_{s-1} (s - 1 = ``depth``); ``cam_pdf_a``: the
+        camera's area density there.  The light image's rate is N_L / N_C."""
         if not self.on:
             return mi.Float(1.0)
-        return weight_light_to_camera(self.h, d_vcm, d_vc, cam_pdf_a, bsdf_rev_w)
+        return weight_light_to_camera(self.h, d_vcm, d_vc, cam_pdf_a / self.light_ratio,
+                                      bsdf_rev_w, self.rate(depth))
 
     def emitter_to_camera(self, cam_pdf_a, pos_pdf_a):
-        """(1,1) (``cam_pdf_a`` already scaled by N_C / N_L)."""
+        """(1,1), the light image at y_0."""
         if not self.on:
             return mi.Float(1.0)
-        return weight_emitter_to_camera(self.h, cam_pdf_a, pos_pdf_a)
+        return weight_emitter_to_camera(self.h, cam_pdf_a / self.light_ratio, pos_pdf_a)
 
-    def connect(self, light_d_vcm, light_d_vc, cam_d_vcm, cam_d_vc, lw, specularity,
+    def connect(self, light, cam_d_vcm, cam_d_vc, cam_depth, lw, specularity,
                 cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w):
-        """s, t >= 2."""
+        """s, t >= 2: stored light vertex ``light`` (y_{s-1}) to camera vertex
+        z_{t-1} (t - 1 = ``cam_depth``)."""
         if not self.on:
             return mi.Float(1.0)
         if self.lafortune:
             return weight_lafortune(lw, specularity, "connect")
-        return weight_connect(self.h, light_d_vcm, light_d_vc, cam_d_vcm, cam_d_vc,
-                              cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w)
+        return weight_connect(self.h, light.d_vcm, light.d_vc, cam_d_vcm, cam_d_vc,
+                              cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w,
+                              self.rate(light.s - 1), self.rate(cam_depth), self.kappa)
 
     def first_light_vertex(self, d_vc0, nee_pdf_a, nee_pdf_w, infinite, emission_pdf_aw,
                            dist2, cos_hit):

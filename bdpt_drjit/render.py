@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import drjit as dr
 import mitsuba as mi
@@ -29,6 +29,7 @@ from .emitters import Emitters
 from .film import FilmAccumulator
 from .mis import Weights
 from .settings import Settings
+from .budgets import BDPT, Budget, fixed_budget
 from .strategies import StrategyImages, StrategySet
 from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore
 from .walk import trace_camera_subpaths, trace_light_subpaths
@@ -54,12 +55,32 @@ class PassContext:
     emitters: Emitters
     camera_sampler: mi.Sampler
     light_sampler: mi.Sampler
+    budget: Budget
     lane: mi.UInt32                    # each lane's own index (pools, strategy images)
     time: mi.Float                     # per lane, shared by its two subpaths
     wavelengths: mi.UnpolarizedSpectrum
     camera_weight: mi.Spectrum         # sensor sampling weight (spectral response)
-    light_ratio: mi.Float              # N_L / N_C
+    light_count: int                   # N_L light subpaths; camera lane i takes i mod N_L
+    pick_offset: mi.Float              # a vertex cache's pick offset, uniform per pass
     images: StrategyImages | None = None
+    connection_scale: mi.Float = None  # 1 / kappa of the pass's stored vertices
+    stored: mi.UInt32 = None           # V, the stored light vertices of the pass
+
+    def light_subpath(self, lane):
+        """The light subpath camera lane ``lane`` connects to (i mod N_L)."""
+        return lane % dr.opaque(mi.UInt32, max(self.light_count, 1))
+
+    def for_light_subpaths(self) -> "PassContext":
+        """This context with a lane per light subpath; light subpath l shares the time,
+        wavelengths and sensor weight of camera lane l mod N_C."""
+        lanes = dr.width(self.lane)
+        if self.light_count == lanes:
+            return replace(self)
+        home = dr.arange(mi.UInt32, self.light_count) % dr.opaque(mi.UInt32, lanes)
+        return replace(self, lane=dr.arange(mi.UInt32, self.light_count),
+                       time=dr.gather(mi.Float, self.time, home),
+                       wavelengths=dr.gather(type(self.wavelengths), self.wavelengths, home),
+                       camera_weight=dr.gather(type(self.camera_weight), self.camera_weight, home))
 
 
 @dataclass
@@ -98,6 +119,11 @@ def _mix_seed(*values: int) -> int:
         x = x * 0x94D049BB133111EB & 0xFFFFFFFFFFFFFFFF
         x ^= x >> 29
     return x & 0xFFFFFFFF
+
+
+def _unit(*values: int) -> float:
+    """A number in [0, 1) from integers (a pass's pick offset)."""
+    return _mix_seed(*values, 0x5EED) / 2.0 ** 32
 
 
 def check_variant() -> None:
@@ -156,8 +182,14 @@ class Renderer:
         self.emitters = Emitters(scene)
         if self.emitters.count == 0:
             warnings.warn("bdpt: the scene has no emitters; the image is black", stacklevel=2)
+        self.budget = fixed_budget(self.settings) or BDPT
+        if mi.is_spectral and self.settings.light_paths not in ("auto", 0.0, 1.0):
+            raise ValueError("bdpt: light_paths must be 0 or 1 in spectral variants (a light "
+                             "subpath shares its wavelengths with one camera sample), got %g"
+                             % self.settings.light_paths)
+        self._rules_cache = {}
+        # Strategy-image layers cover every strategy of full BDPT.
         self.strategies = StrategySet(self.settings, self.emitters.count > 0)
-        self.weights = Weights(self.settings.mis, self.strategies)
         self.seed = int(seed)
         self.strategy_images = strategy_images
         film = self.sensor.film()
@@ -178,7 +210,8 @@ class Renderer:
         self.time = 0.0
         self.rays = 0
         self._last_lanes = 0
-        self._capacity = {}          # pool capacities per lane, raised on overflow
+        self._capacity = {}          # pool capacities per light subpath, raised on overflow
+        self._vertices_per_path = 3.0   # stored light vertices per light subpath, last pass
 
     def _accepted_count(self, n: int) -> int:
         sampler = self.sensor.sampler().clone()
@@ -226,26 +259,40 @@ class Renderer:
         sampler.seed(_mix_seed(self.seed, index, stream), lanes)
         return sampler
 
-    def _context(self, index, rays, sampler, lanes: int, spp: int) -> PassContext:
+    def _rules(self, budget: Budget):
+        """The strategies and weights of a budget (one pair per budget, reused)."""
+        if budget not in self._rules_cache:
+            strategies = StrategySet(self.settings, self.emitters.count > 0, budget)
+            self._rules_cache[budget] = (strategies, Weights(self.settings.mis, strategies))
+        return self._rules_cache[budget]
+
+    def _context(self, index, rays, sampler, lanes: int, spp: int, budget: Budget) -> PassContext:
+        strategies, weights = self._rules(budget)
+        n_light = budget.light_subpaths(lanes) if strategies.max_light_vertices() != -1 else 0
+        # MIS rates of the pass: a vertex cache's kappa from the stored vertices per light
+        # subpath of the last pass (the weights need a value before the light walk).
+        weights.set_rates(n_light / lanes, budget.kappa(n_light, n_light * self._vertices_per_path))
         images = StrategyImages(self.strategies, lanes) if self.strategy_images else None
         return PassContext(
-            scene=self.scene, camera=self.camera, settings=self.settings,
-            strategies=self.strategies, weights=self.weights, emitters=self.emitters,
-            camera_sampler=sampler, light_sampler=self._sampler(index, 1, lanes, spp),
+            scene=self.scene, camera=self.camera, settings=self.settings, budget=budget,
+            strategies=strategies, weights=weights, emitters=self.emitters,
+            camera_sampler=sampler, light_sampler=self._sampler(index, 1, max(n_light, 1), spp),
             lane=dr.arange(mi.UInt32, lanes), time=rays.ray.time,
             wavelengths=rays.ray.wavelengths, camera_weight=rays.weight,
-            light_ratio=dr.opaque(mi.Float, 1.0), images=images)
+            light_count=n_light, pick_offset=dr.opaque(mi.Float, _unit(self.seed, index)),
+            images=images)
 
     def _render_pass(self, index, pixel_offset, n_pixels, spp, lanes):
+        budget = self.budget
         # Stage 1: camera rays.
         sampler = self._sampler(index, 0, lanes, spp)
         rays = self.camera.sample_rays(sampler, pixel_offset, n_pixels, spp)
         sampler.schedule_state()
         dr.eval(rays)
-        ctx = self._context(index, rays, sampler, lanes, spp)
+        ctx = self._context(index, rays, sampler, lanes, spp, budget)
 
         # Stage 2: light subpaths: stored light vertices and t = 1 splats.
-        store, light_rays = self._light_subpaths(ctx, index, lanes, spp)
+        store, light_rays = self._light_subpaths(ctx, index, spp)
 
         # Stage 3: camera subpaths, with every strategy t >= 2.
         cam = trace_camera_subpaths(ctx, rays, store)
@@ -256,26 +303,34 @@ class Renderer:
                              None if ctx.images is None else ctx.images.values, lanes)
         if store is not None:
             self.film.put_splats(store.splats.items, store.splats.size(), ctx.wavelengths,
+                                 lanes / ctx.light_count,
                                  None if ctx.images is None else ctx.images.layer_of)
-        self.film.light_paths += lanes
-        self.rays += int(dr.sum(cam.rays + light_rays)[0])
+        self.film.camera_samples += lanes
+        self.rays += int(dr.sum(cam.rays)[0]) + int(dr.sum(light_rays)[0])
 
-    def _light_subpaths(self, ctx, index: int, lanes: int, spp: int):
+    def _light_subpaths(self, ctx, index: int, spp: int):
         """Stage 2; runs the light walk again with larger pools if one overflowed
         (nothing has reached the film yet, and the sampler is seeded the same)."""
-        max_i = self.strategies.max_light_vertices()
-        if max_i is not None and max_i < 0:             # no strategy uses light subpaths
-            return None, dr.zeros(mi.UInt32, lanes)
-        per_lane = self._capacity.setdefault(lanes, [_VERTICES_PER_LANE, _SPLATS_PER_LANE])
+        n = ctx.light_count
+        if n == 0:                                      # no strategy uses light subpaths
+            return None, mi.UInt32(0)
+        light = ctx.for_light_subpaths()
+        per_path = self._capacity.setdefault(n, [_VERTICES_PER_LANE, _SPLATS_PER_LANE])
         while True:
-            store = LightVertexStore(lanes, lanes * per_lane[0], lanes * per_lane[1])
-            light_rays = trace_light_subpaths(ctx, store)
+            store = LightVertexStore(n, n * per_path[0], n * per_path[1])
+            light_rays = trace_light_subpaths(light, store)
             dr.eval(light_rays, store.vertices.items, store.splats.items, store.first)
             if not store.overflowed():
-                return store, light_rays
-            per_lane[0] = max(per_lane[0], -(-store.vertices.size() * 5 // (4 * lanes)))
-            per_lane[1] = max(per_lane[1], -(-store.splats.size() * 5 // (4 * lanes)))
-            ctx.light_sampler = self._sampler(index, 1, lanes, spp)
+                break
+            per_path[0] = max(per_path[0], -(-store.vertices.size() * 5 // (4 * n)))
+            per_path[1] = max(per_path[1], -(-store.splats.size() * 5 // (4 * n)))
+            light.light_sampler = self._sampler(index, 1, n, spp)
+        stored = store.vertices.size()
+        self._vertices_per_path = max(stored / n, 1e-3)
+        # A vertex cache's contributions are divided by the density of their pick.
+        ctx.connection_scale = dr.opaque(mi.Float, 1.0 / max(ctx.budget.kappa(n, stored), 1e-20))
+        ctx.stored = dr.opaque(mi.UInt32, max(stored, 1))
+        return store, light_rays
 
     # -- results -------------------------------------------------------------------
     def tensor(self) -> mi.TensorXf:

@@ -62,6 +62,12 @@ PARAMS = (
     Param("strategy_subset", str, "all", "``all``; ``pt`` = path tracing with next-event "
           "estimation only (s <= 1), ``lt`` = light tracing only (t = 1): the same engine "
           "without MIS's other strategies.", choices=STRATEGY_SUBSETS),
+    Param("light_paths", str, "auto", "Light subpaths per camera sample (a number >= 0; "
+          "0 = path tracing with next-event estimation), or ``auto``: chosen for "
+          "efficiency from pilot passes (budgets.py)."),
+    Param("connections", str, "auto", "Connections per camera vertex: ``all`` (every "
+          "vertex of its light subpath), a count M (M vertices drawn from all the "
+          "pass's light vertices; 0 = none), or ``auto`` (chosen with light_paths)."),
     Param("samples_per_pass", int, 0, "Samples per pixel per pass; 0 chooses it so that "
           "a pass fits ``memory_budget``.", minimum=0),
     Param("memory_budget", int, DEFAULT_MEMORY_BUDGET, "Bytes a pass may use for its "
@@ -114,9 +120,41 @@ def canonical_name(key: str) -> str:
     raise ValueError("bdpt: unknown parameter '%s' (known: %s)" % (key, ", ".join(PARAM)))
 
 
+def parse_light_paths(value):
+    """``light_paths``: "auto" or a ratio >= 0."""
+    if str(value) == "auto":
+        return "auto"
+    try:
+        ratio = float(value)
+    except (TypeError, ValueError):
+        ratio = -1.0
+    if not ratio >= 0 or ratio == float("inf"):
+        raise ValueError("bdpt: light_paths must be 'auto' or a number >= 0 (light subpaths "
+                         "per camera sample), got %r" % (value,))
+    return ratio
+
+
+def parse_connections(value):
+    """``connections``: "auto", "all" or a count >= 0."""
+    if str(value) in ("auto", "all"):
+        return str(value)
+    try:
+        count = int(str(value))
+    except ValueError:
+        count = -1
+    if count < 0:
+        raise ValueError("bdpt: connections must be 'auto', 'all' or a count >= 0, got %r"
+                         % (value,))
+    return count
+
+
 def _convert(p: Param, value):
     if p.name == "technique":
         return parse_technique(value)
+    if p.name == "light_paths":
+        return parse_light_paths(value)
+    if p.name == "connections":
+        return parse_connections(value)
     if p.kind is bool:
         if isinstance(value, str):
             if value.lower() not in ("true", "false", "1", "0"):
@@ -147,6 +185,8 @@ class Settings:
     hide_emitters: bool = PARAM["hide_emitters"].default
     technique: tuple | None = None
     strategy_subset: str = PARAM["strategy_subset"].default
+    light_paths: object = PARAM["light_paths"].default
+    connections: object = PARAM["connections"].default
     samples_per_pass: int = PARAM["samples_per_pass"].default
     memory_budget: int = PARAM["memory_budget"].default
 
@@ -161,6 +201,21 @@ class Settings:
             raise ValueError("bdpt: strategy_subset='lt' (light tracing) needs light_image")
         if self.technique is not None:
             self._check_technique()
+        forced = self._forced_budget_reason()
+        if forced and (self.light_paths != "auto" or self.connections != "auto"):
+            raise ValueError("bdpt: light_paths and connections are fixed by %s; leave them "
+                             "'auto'" % forced)
+
+    def _forced_budget_reason(self) -> str | None:
+        """What fixes the budgets (budgets.py), if anything: a single technique, a
+        strategy subset and Lafortune's weights each have one fixed budget."""
+        if self.technique is not None:
+            return "technique"
+        if self.strategy_subset != "all":
+            return "strategy_subset '%s'" % self.strategy_subset
+        if self.mis == "lafortune":
+            return "mis 'lafortune'"
+        return None
 
     def _check_technique(self):
         s, t = self.technique

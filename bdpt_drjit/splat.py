@@ -28,9 +28,9 @@ def light_vertex_to_camera(ctx, store, si, bsdf, vertex, sample, active) -> mi.U
     traced = active & spectrum_nonzero(contrib)
     active = traced & ~ctx.scene.ray_test(si.spawn_ray_to(cam.p), traced)
     # importance = pdf_w(camera) / d^2, so the camera's area density at y_i is
-    # importance * cos (tech. rep. eq. 46; scaled by N_C / N_L).
-    cam_pdf_a = cam.importance * cos_out / ctx.light_ratio
-    contrib *= ctx.weights.light_to_camera(vertex.d_vcm, vertex.d_vc, cam_pdf_a, rev_w)
+    # importance * cos (tech. rep. eq. 46).
+    contrib *= ctx.weights.light_to_camera(vertex.d_vcm, vertex.d_vc, vertex.s - 1,
+                                           cam.importance * cos_out, rev_w)
     store.splats.append(Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=vertex.s,
                               lane=ctx.lane), active)
     return dr.select(traced, 1, 0)
@@ -54,8 +54,7 @@ def emitter_to_camera(ctx, store, es, sample, active) -> mi.UInt32:
     contrib = le * cos_e / es.pos_pdf_a * cam.importance * ctx.camera_weight
     traced = active & spectrum_nonzero(contrib)
     active = traced & ~ctx.scene.ray_test(it.spawn_ray_to(cam.p), traced)
-    cam_pdf_a = cam.importance * cos_e / ctx.light_ratio
-    contrib *= ctx.weights.emitter_to_camera(cam_pdf_a, es.pos_pdf_a)
+    contrib *= ctx.weights.emitter_to_camera(cam.importance * cos_e, es.pos_pdf_a)
     store.splats.append(Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=mi.UInt32(1),
                               lane=ctx.lane), active)
     return dr.select(traced, 1, 0)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from .budgets import BDPT, Budget
 from .settings import Settings
 
 # Strategy-image layers: one per (s, t) up to this path length, then one per k up
@@ -24,12 +25,19 @@ DEEP_K = 16
 
 
 class StrategySet:
-    def __init__(self, settings: Settings, has_emitters: bool, light_image_possible: bool = True):
+    """The strategies of one budget (budgets.py): no light image without light
+    subpaths, no connections without connection budget."""
+
+    def __init__(self, settings: Settings, has_emitters: bool, budget: Budget = BDPT,
+                 light_image_possible: bool = True):
         self.settings = settings
+        self.budget = budget
         self.max_depth = settings.max_depth
         self.technique = settings.technique
         self.subset = settings.strategy_subset
-        self.light_image = settings.light_image and light_image_possible
+        self.light_image = (settings.light_image and light_image_possible
+                            and budget.light_ratio > 0)
+        self.connects = budget.connects
         self.hide_emitters = settings.hide_emitters
         self.has_emitters = has_emitters
 
@@ -50,6 +58,8 @@ class StrategySet:
             conds.append(t == 1)
         if not self.light_image:
             conds.append(t >= 2)
+        if not self.connects:
+            conds.append((s <= 1) | (t <= 1))
         if self.hide_emitters:
             conds.append(k != 1)
         out = conds[0]
@@ -61,10 +71,6 @@ class StrategySet:
     def use_mis(self) -> bool:
         """MIS weights apply unless one strategy per path length is left."""
         return self.technique is None and self.subset != "lt"
-
-    @property
-    def pt_only(self) -> bool:
-        return self.subset == "pt"
 
     def max_camera_vertices(self) -> int | None:
         """The deepest camera vertex z_j (j = t - 1) any strategy uses; None: unbounded.
@@ -83,7 +89,9 @@ class StrategySet:
         if self.technique is not None:
             s, t = self.technique
             return s - 1 if (s >= 2 or (s == 1 and t == 1)) else -1
-        if self.subset == "pt":
+        if self.subset == "pt" or self.budget.light_ratio <= 0:
+            return -1
+        if not (self.light_image or self.connects):
             return -1
         if self.max_depth < 0:
             return None
@@ -93,7 +101,7 @@ class StrategySet:
         """Must light vertex y_{s-1} be stored: is some (s, t >= 2) on?"""
         if self.technique is not None:
             return (s == self.technique[0]) & (self.technique[1] >= 2) & (s >= 2)
-        if self.subset != "all":
+        if self.subset != "all" or not self.connects:
             return False
         return self.enabled(s, 2) & (s >= 2)
 

@@ -102,30 +102,37 @@ def trace_light_subpaths(ctx, store) -> mi.UInt32:
 
     def step(state: PathState, u: DepthSamples):
         si, bsdf, _ = _intersect(ctx, state)
-        i = state.depth
-        cos_in = dr.abs(dr.dot(si.n, state.ray.d))
-        dist2 = dr.squared_norm(si.p - state.prev.p)
-        first = i == 1
-        nee_a = ctx.emitters.nee_pdf_a(si, es.p, es.n, es.uv, es.emitter, es.delta_pos,
-                                       ctx.time, state.active & first & ~es.infinite)
-        nee_w = ctx.emitters.environment_nee_pdf_w(es.emitter, si, -state.ray.d,
-                                                   state.active & first & es.infinite)
-        d_vcm0, d_vc0 = ctx.weights.first_light_vertex(
-            state.d_vc, nee_a, nee_w, es.infinite, es.emission_pdf, dist2, cos_in)
-        d_vcm1, d_vc1 = ctx.weights.after_hit(state.d_vcm, state.d_vc, dist2, cos_in)
-        state.d_vcm, state.d_vc = dr.select(first, d_vcm0, d_vcm1), dr.select(first, d_vc0, d_vc1)
+        s = state.depth + 1                # strategies ending the light subpath at y_i
+        _light_vertex_mis(ctx, es, state, si)
         connectible = state.active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        vertex = LightVertex(surface=SurfaceRecord.of(si), beta=mi.Spectrum(state.beta), d_vcm=state.d_vcm,
-                             d_vc=state.d_vc, s=i + 1, next=mi.UInt32(NONE))
+        vertex = LightVertex(surface=SurfaceRecord.of(si), beta=mi.Spectrum(state.beta),
+                             d_vcm=state.d_vcm, d_vc=state.d_vc, s=s, next=mi.UInt32(NONE))
         state.rays += splat.light_vertex_to_camera(
-            ctx, store, si, bsdf, vertex, u.endpoint, connectible & ctx.strategies.enabled(i + 1, 1))
+            ctx, store, si, bsdf, vertex, u.endpoint, connectible & ctx.strategies.enabled(s, 1))
         state.last_item = store.add_vertex(vertex, ctx.lane, state.last_item,
-                                           connectible & ctx.strategies.stores(i + 1))
-        goes_on = state.active if max_i is None else state.active & (i < max_i)
+                                           connectible & ctx.strategies.stores(s))
+        goes_on = state.active if max_i is None else state.active & (state.depth < max_i)
         _scatter(ctx, state, si, bsdf, u, goes_on, importance=True)
 
     state = _loop("light subpaths", state, ctx.light_sampler, step)
     return state.rays
+
+
+def _light_vertex_mis(ctx, es, state: PathState, si):
+    """The MIS chains at y_i, in area measure.  At y_1 they also take the density with
+    which next-event estimation from y_1 would have picked y_0 (mis.first_light_vertex)."""
+    cos_in = dr.abs(dr.dot(si.n, state.ray.d))
+    dist2 = dr.squared_norm(si.p - state.prev.p)
+    first = state.depth == 1
+    nee_pdf_a = ctx.emitters.nee_pdf_a(si, es.p, es.n, es.uv, es.emitter, es.delta_pos,
+                                       ctx.time, state.active & first & ~es.infinite)
+    nee_pdf_w = ctx.emitters.environment_nee_pdf_w(es.emitter, si, -state.ray.d,
+                                                   state.active & first & es.infinite)
+    d_vcm1, d_vc1 = ctx.weights.first_light_vertex(state.d_vc, nee_pdf_a, nee_pdf_w, es.infinite,
+                                                   es.emission_pdf, dist2, cos_in)
+    d_vcm, d_vc = ctx.weights.after_hit(state.d_vcm, state.d_vc, dist2, cos_in)
+    state.d_vcm = dr.select(first, d_vcm1, d_vcm)
+    state.d_vc = dr.select(first, d_vc1, d_vc)
 
 
 def _light_start(ctx, store):
@@ -149,7 +156,7 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
     """Camera subpaths z_0 .. z_n with every strategy t >= 2; returns the final
     state (``radiance``, ``hit``, ``rays`` per lane)."""
     max_j = ctx.strategies.max_camera_vertices()
-    d_vcm, d_vc = ctx.weights.camera_start(rays.pdf_w, ctx.light_ratio)
+    d_vcm, d_vc = ctx.weights.camera_start(rays.pdf_w)
     z0 = _point(rays.origin, mi.Normal3f(0.0), ctx.time, ctx.wavelengths)
     state = PathState.start(rays.ray, rays.weight, d_vcm, d_vc, z0, max_j is None or max_j >= 1)
 
@@ -221,7 +228,7 @@ def _scatter(ctx, state: PathState, si, bsdf, u: DepthSamples, active, importanc
         pdf_rev_w = reverse_pdf(bsdf, IMPORTANCE, si, bs.wo, active)
     # Lanes that stop keep garbage from here on; nothing reads it.
     state.d_vcm, state.d_vc = ctx.weights.after_scatter(state.d_vcm, state.d_vc, cos_out,
-                                                        bs.pdf, pdf_rev_w, delta)
+                                                        bs.pdf, pdf_rev_w, delta, state.depth)
     state.beta = mi.Spectrum(state.beta * weight)       # (spectral arithmetic may
     state.rr_beta = mi.Spectrum(state.rr_beta * weight) # give a plain Array4f)
     state.eta *= bs.eta

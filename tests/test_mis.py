@@ -86,7 +86,14 @@ def B(x):
     return mi.Bool(np.asarray(x, dtype=bool))
 
 
-def chain_weights(P, k, h, light_image):
+def rate(k, s, r, kappa):
+    """The sampling rate m_s of strategy s (mis.py): N_L / N_C for t = 1, kappa for
+    connections, 1 for s <= 1."""
+    t = k + 1 - s
+    return r if t == 1 else (1.0 if s <= 1 else kappa)
+
+
+def chain_weights(P, k, h, light_image, r=1.0, kappa=1.0):
     """Weights of all strategies as the engine computes them (mis.py)."""
     emission_pdf = F(P["e_pos"] * P["pdf_l"][:, 0])
     # light subpath: states at x_1 .. x_{k-1}
@@ -94,23 +101,24 @@ def chain_weights(P, k, h, light_image):
     d_vc = mis.light_start(h, emission_pdf, F(P["cos_fwd"][:, 0]), B(P["point_light"]))
     d_vcm, d_vc = mis.light_first_hit(h, d_vc, F(P["nee_a"]), emission_pdf,
                                       F(P["dist2"][:, 0]), F(P["cos_bwd"][:, 0]))
+    m = lambda depth: 1.0 if depth == 1 else kappa      # noqa: E731  (d_vcm's strategy)
     for i in range(1, k):
         light[i] = (d_vcm, d_vc)
         if i + 1 < k:
             d_vcm, d_vc = mis.after_scatter(h, d_vcm, d_vc, F(P["cos_fwd"][:, i]),
                                             F(P["pdf_l"][:, i]), F(P["pdf_e"][:, i]),
-                                            B(P["delta"][:, i]))
+                                            B(P["delta"][:, i]), m(i))
             d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, i]), F(P["cos_bwd"][:, i]))
     # camera subpath: states at x_{k-1} .. x_0
     cam = {}
-    d_vcm, d_vc = mis.camera_start(h, F(P["cam_w"]), 1.0, light_image)
+    d_vcm, d_vc = mis.camera_start(h, F(P["cam_w"]), r, light_image)
     d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, k - 1]), F(P["cos_fwd"][:, k - 1]))
     for i in range(k - 1, -1, -1):
         cam[i] = (d_vcm, d_vc)
         if i > 0:
             d_vcm, d_vc = mis.after_scatter(h, d_vcm, d_vc, F(P["cos_bwd"][:, i - 1]),
                                             F(P["pdf_e"][:, i]), F(P["pdf_l"][:, i]),
-                                            B(P["delta"][:, i]))
+                                            B(P["delta"][:, i]), m(k - i))
             d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, i - 1]), F(P["cos_fwd"][:, i - 1]))
 
     w = {}
@@ -123,37 +131,47 @@ def chain_weights(P, k, h, light_image):
                 direct = F(np.zeros(N))
             w[s] = mis.weight_emission_hit(h, dv[0], dv[1], direct, emission_pdf)
         elif s == 1 and t == 1:
-            cam_a = F(P["cam_w"] * P["cos_fwd"][:, 0] / P["dist2"][:, 0])
+            cam_a = F(P["cam_w"] * P["cos_fwd"][:, 0] / P["dist2"][:, 0] / r)
             w[s] = mis.weight_emitter_to_camera(h, cam_a, F(P["e_pos"]))
         elif s == 1:
             dv = cam[1]
             bsdf_pdf = np.where(P["point_light"], 0.0, P["pdf_e"][:, 1])
             nee_w = P["nee_a"] * P["dist2"][:, 0] / P["cos_fwd"][:, 0]
             w[s] = mis.weight_nee(h, dv[0], dv[1], F(bsdf_pdf), F(nee_w), emission_pdf,
-                                  F(P["cos_bwd"][:, 0]), F(P["cos_fwd"][:, 0]), F(P["pdf_l"][:, 1]))
+                                  F(P["cos_bwd"][:, 0]), F(P["cos_fwd"][:, 0]), F(P["pdf_l"][:, 1]),
+                                  m(k - 1))
         elif t == 1:
             lv = light[k - 1]
-            cam_a = F(P["cam_w"] * P["cos_fwd"][:, k - 1] / P["dist2"][:, k - 1])
-            w[s] = mis.weight_light_to_camera(h, lv[0], lv[1], cam_a, F(P["pdf_e"][:, k - 1]))
+            cam_a = F(P["cam_w"] * P["cos_fwd"][:, k - 1] / P["dist2"][:, k - 1] / r)
+            w[s] = mis.weight_light_to_camera(h, lv[0], lv[1], cam_a, F(P["pdf_e"][:, k - 1]),
+                                              m(k - 1))
         else:
             lv, cv = light[s - 1], cam[s]
             cam_pdf_a = P["pdf_e"][:, s] * P["cos_fwd"][:, s - 1] / P["dist2"][:, s - 1]
             light_pdf_a = P["pdf_l"][:, s - 1] * P["cos_bwd"][:, s - 1] / P["dist2"][:, s - 1]
             w[s] = mis.weight_connect(h, lv[0], lv[1], cv[0], cv[1], F(cam_pdf_a),
-                                      F(P["pdf_l"][:, s]), F(light_pdf_a), F(P["pdf_e"][:, s - 1]))
+                                      F(P["pdf_l"][:, s]), F(light_pdf_a), F(P["pdf_e"][:, s - 1]),
+                                      m(s - 1), m(k - s), kappa)
     return {s: np.array(v, dtype=np.float64) for s, v in w.items()}
+
+
+BUDGETS = [(1.0, 1.0), (0.25, 1.0), (2.0, 0.0), (0.5, 0.3), (1.0, 2.5)]   # (N_L/N_C, kappa)
 
 
 @pytest.mark.parametrize("heuristic", ["power", "balance", "uniform"])
 @pytest.mark.parametrize("light_image", [True, False])
 @pytest.mark.parametrize("k", [1, 2, 3, 4, 5, 6])
-def test_weights_sum_to_one_and_match_brute_force(heuristic, light_image, k):
+@pytest.mark.parametrize("r, kappa", BUDGETS)
+def test_weights_sum_to_one_and_match_brute_force(heuristic, light_image, k, r, kappa):
+    """Every budget: light subpaths per camera sample r, connection rate kappa (0:
+    connections off, so that s <= 1 and t = 1 are MIS'ed alone)."""
     rng = np.random.default_rng(1000 * k + 7)
     P = random_path(rng, k)
     h = mis.Heuristic(heuristic)
-    w = chain_weights(P, k, h, light_image)
-    valid = {s: strategy_valid(P, k, s, light_image) for s in range(k + 1)}
-    pdfs = {s: brute_force_pdf(P, k, s) for s in range(k + 1)}
+    w = chain_weights(P, k, h, light_image, r, kappa)
+    valid = {s: strategy_valid(P, k, s, light_image) & (rate(k, s, r, kappa) > 0)
+             for s in range(k + 1)}
+    pdfs = {s: brute_force_pdf(P, k, s) * rate(k, s, r, kappa) for s in range(k + 1)}
     hp = {s: np.where(valid[s], (pdfs[s] ** 2 if heuristic == "power" else
                                  pdfs[s] if heuristic == "balance" else 1.0), 0.0)
           for s in range(k + 1)}

@@ -1,0 +1,72 @@
+"""Technique budgets: how many light subpaths and connections a pass spends.
+
+A budget is the pair (N_L / N_C, connections per camera vertex):
+
+* ``light_ratio``: light subpaths per camera sample.  0 is path tracing with
+  next-event estimation (no light walk at all); camera sample i takes light subpath
+  i mod N_L, so camera samples of one pixel never share a light subpath.
+* ``connections``: ``"all"`` connects each camera vertex to every stored vertex of
+  its light subpath (Veach's BDPT); a count M connects it to M vertices drawn from
+  all the pass's stored light vertices (a light vertex cache, Davidovic et al.
+  2014); 0 connects nothing (light tracing and path tracing, MIS'ed together).
+
+Every budget is a valid MIS combination (mis.py's rates), so any sequence of
+budgets gives an unbiased image.  With ``light_paths`` / ``connections`` left at
+"auto", optimizer.py chooses the budget from pilot passes.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Budget:
+    light_ratio: float = 1.0         # N_L / N_C
+    connections: object = "all"      # "all" or a count M >= 0
+
+    def light_subpaths(self, camera_samples: int) -> int:
+        """N_L for a pass of ``camera_samples`` lanes."""
+        if self.light_ratio <= 0:
+            return 0
+        return max(1, int(round(self.light_ratio * camera_samples)))
+
+    @property
+    def connects(self) -> bool:
+        return self.light_ratio > 0 and self.connections != 0
+
+    @property
+    def caches(self) -> bool:
+        """Connections to vertices drawn from the pass's pool (a light vertex cache)."""
+        return self.connects and self.connections != "all"
+
+    def kappa(self, light_subpaths: int, stored_vertices: float) -> float:
+        """The connection rate of mis.py: 1 for "all"; for M vertices drawn from a pool
+        of V, the density of connecting a given stored vertex relative to "all":
+        M N_L / V."""
+        if not self.connects:
+            return 0.0
+        if self.connections == "all":
+            return 1.0
+        return self.connections * light_subpaths / max(stored_vertices, 1.0)
+
+    def __str__(self) -> str:
+        ratio = ("%g" % self.light_ratio) if not math.isnan(self.light_ratio) else "?"
+        return "light_paths=%s connections=%s" % (ratio, self.connections)
+
+
+BDPT = Budget(1.0, "all")
+PATH_TRACING = Budget(0.0, 0)
+
+
+def fixed_budget(settings) -> Budget | None:
+    """The budget the settings fix, or None when the optimizer chooses."""
+    if settings.technique is not None or settings.mis == "lafortune":
+        return BDPT
+    if settings.strategy_subset == "pt":
+        return PATH_TRACING
+    if settings.strategy_subset == "lt":
+        return Budget(1.0, 0)
+    if settings.light_paths == "auto" or settings.connections == "auto":
+        return None
+    return Budget(float(settings.light_paths), settings.connections)
