@@ -31,6 +31,7 @@ class CameraRays:
     ray: mi.RayDifferential3f
     weight: mi.Spectrum       # sensor sampling weight (spectral response), 1 in RGB
     pos: mi.Vector2f          # film position to put the sample at
+    pixel: mi.UInt32          # its crop-window pixel, row-major
     origin: mi.Point3f        # z_0, the pinhole
     pdf_w: mi.Float           # solid-angle density of the ray's direction over the film
 
@@ -84,6 +85,12 @@ class Camera:
                  & (p.x <= self.rect_max.x) & (p.y <= self.rect_max.y))
         return dr.select(valid, self.normalization * inv_ct * inv_ct * inv_ct, 0.0)
 
+    def pixel_index(self, uv: mi.Point2f) -> mi.UInt32:
+        """The crop-window pixel (row-major) of a film position in pixels."""
+        x = dr.clip(mi.Int32(dr.floor(uv.x)), 0, mi.Int32(self.resolution.x) - 1)
+        y = dr.clip(mi.Int32(dr.floor(uv.y)), 0, mi.Int32(self.resolution.y) - 1)
+        return mi.UInt32(y * mi.Int32(self.resolution.x) + x)
+
     def direction_pdf_w(self, d_world: mi.Vector3f) -> mi.Float:
         """Solid-angle density of a primary ray's direction (tech. rep. eq. 31)."""
         return self._importance(self.to_local @ d_world)
@@ -126,8 +133,10 @@ class Camera:
         crop_offset = mi.Vector2f(corner + border)
         ray, weight = sensor.sample_ray_differential(
             time, wavelength_sample, (pos_f - crop_offset) / self.resolution, aperture)
+        pixel = self.pixel_index(pos_f - crop_offset)
         pos = mi.Vector2f(pos) if film.rfilter().is_box_filter() else pos_f
-        return CameraRays(ray=ray, weight=weight, pos=pos, origin=self.to_world.translation(),
+        return CameraRays(ray=ray, weight=weight, pos=pos, pixel=pixel,
+                          origin=self.to_world.translation(),
                           pdf_w=self.direction_pdf_w(ray.d))
 
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from . import mis
 from .emitters import DIRECTIONAL
 from .surface import eval_adjoint, finite, geometric_cosines, reverse_pdf, spectrum_nonzero
 from .vertices import NONE
@@ -43,7 +44,12 @@ def emission_hit(ctx, state, si):
                                        si.time, hit & ~from_pinhole)
     contrib *= ctx.weights.emission_hit(state.d_vcm, state.d_vc, state.lw, from_pinhole,
                                         nee_pdf_a, pos_pdf_a, emission_pdf_aw)
-    return dr.select(hit, finite(contrib), 0.0)
+    contrib = dr.select(hit, finite(contrib), 0.0)
+    if ctx.moments is not None:
+        direct_pdf_a = ctx.weights.direct_pdf_a(from_pinhole, nee_pdf_a, pos_pdf_a)
+        state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, contrib, *mis.groups_emission_hit(
+            state.d_vcm, state.d_vc, state.d_end, from_pinhole, direct_pdf_a, emission_pdf_aw), hit)
+    return contrib
 
 
 def environment_hit(ctx, state, escaped):
@@ -59,7 +65,14 @@ def environment_hit(ctx, state, escaped):
         mi.EmitterPtr(env), state.prev, ray.d, active & (state.depth > 1))
     contrib *= ctx.weights.environment_hit(state.d_vcm, state.d_vc, state.lw, state.depth == 1,
                                            nee_pdf_w, emission_pdf_aw)
-    return dr.select(active, finite(contrib), 0.0)
+    contrib = dr.select(active, finite(contrib), 0.0)
+    if ctx.moments is not None:        # an escape at once has no rival: all path tracing
+        u_pt, u_lt = mis.groups_emission_hit(state.d_vcm, state.d_vc, state.d_end, False,
+                                             nee_pdf_w, emission_pdf_aw)
+        first = state.depth == 1
+        state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, contrib,
+                                     dr.select(first, 1.0, u_pt), dr.select(first, 0.0, u_lt), active)
+    return contrib
 
 
 def next_event(ctx, state, si, bsdf, sample, active):
@@ -87,7 +100,13 @@ def next_event(ctx, state, si, bsdf, sample, active):
         contrib *= weights.nee(state.d_vcm, state.d_vc, state.lw, state.depth,
                                weights.specularity(bsdf.flags()), ds.delta, bsdf_pdf_w,
                                nee_pdf_w, emission_pdf_aw, cos_cam, cos_light, bsdf_rev_w)
-    return dr.select(active, finite(contrib), 0.0), traced
+    contrib = dr.select(active, finite(contrib), 0.0)
+    if ctx.moments is not None:
+        state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, contrib, *mis.groups_nee(
+            state.d_vcm, state.d_vc, state.d_end, state.depth == 1,
+            dr.select(ds.delta, 0.0, bsdf_pdf_w / nee_pdf_w),
+            emission_pdf_aw * cos_cam / (nee_pdf_w * cos_light), bsdf_rev_w), active)
+    return contrib, traced
 
 
 def stored_vertices(ctx, store, state, si, bsdf, connectible):
@@ -107,23 +126,26 @@ def _subpath_vertices(ctx, store, state, si, bsdf, connectible):
     first = dr.gather(mi.UInt32, store.first, ctx.light_subpath(ctx.lane), connectible)
     k_max = ctx.strategies.max_depth
 
-    def more(item, radiance, rays):
+    def more(item, radiance, rays, slot):
         go = item != NONE
         if k_max >= 0:
             s = dr.gather(mi.UInt32, store.vertices.items.s, item, go)
             go &= s + t - 1 <= k_max
         return go
 
-    def body(item, radiance, rays):
+    def body(item, radiance, rays, slot):
         light = store.vertex(item, True)
         on = ctx.strategies.enabled(light.s, t)
-        c, traced = connect_vertices(ctx, light, on, state, si, bsdf)
+        c, traced, groups = connect_vertices(ctx, light, on, state, si, bsdf)
         radiance = ctx.strategies.add(ctx.images, radiance, ctx.lane, light.s, t, c)
-        return light.next, radiance, rays + dr.select(traced, 1, 0)
+        if groups is not None:
+            slot = ctx.moments.add(slot, ctx.lane, ctx.pixel, c, *groups, on)
+        return light.next, radiance, rays + dr.select(traced, 1, 0), slot
 
-    _, radiance, rays = dr.while_loop(
-        (dr.select(connectible, first, NONE), mi.Spectrum(state.radiance), dr.zeros(mi.UInt32, dr.width(first))),
-        more, body, labels=("item", "radiance", "rays"), label="connections")
+    _, radiance, rays, state.slot = dr.while_loop(
+        (dr.select(connectible, first, NONE), mi.Spectrum(state.radiance),
+         dr.zeros(mi.UInt32, dr.width(first)), mi.UInt32(state.slot)),
+        more, body, labels=("item", "radiance", "rays", "slot"), label="connections")
     return radiance, rays
 
 
@@ -145,7 +167,7 @@ def _cached_vertices(ctx, store, state, si, bsdf, connectible):
         item = (ctx.lane * picks + m + offset) % ctx.stored
         light = store.vertex(item, connectible)
         on = connectible & ctx.strategies.enabled(light.s, t)
-        c, traced = connect_vertices(ctx, light, on, state, si, bsdf)
+        c, traced, _ = connect_vertices(ctx, light, on, state, si, bsdf)
         radiance = ctx.strategies.add(ctx.images, radiance, ctx.lane, light.s, t,
                                       c * ctx.connection_scale)
         rays += dr.select(traced, 1, 0)
@@ -174,7 +196,13 @@ def connect_vertices(ctx, light, active, cam, si_c, bsdf_c):
     if weights.on:
         pdf_l_w = bsdf_l.pdf(IMPORTANCE, si_l, wl, active)
         rev_c_w = reverse_pdf(bsdf_c, IMPORTANCE, si_c, wc, active)
+        pdf_c_a, pdf_l_a = pdf_c_w * cos_l / dist2, pdf_l_w * cos_c / dist2
         contrib *= weights.connect(light, cam.d_vcm, cam.d_vc, cam.depth, cam.lw,
                                    weights.specularity(bsdf_c.flags()),
-                                   pdf_c_w * cos_l / dist2, rev_c_w, pdf_l_w * cos_c / dist2, rev_l_w)
-    return dr.select(active, finite(contrib), 0.0), traced
+                                   pdf_c_a, rev_c_w, pdf_l_a, rev_l_w)
+    contrib = dr.select(active, finite(contrib), 0.0)
+    groups = None
+    if ctx.moments is not None:
+        groups = mis.groups_connect(light, light.s == 2, cam.d_vcm, cam.d_vc, cam.d_end,
+                                    cam.depth == 1, pdf_c_a, rev_c_w, pdf_l_a, rev_l_w)
+    return contrib, traced, groups

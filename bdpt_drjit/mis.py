@@ -317,9 +317,13 @@ class Weights:
             return mi.Float(1.0)
         if self.lafortune:
             return weight_lafortune(lw, None, "hit")
-        rival = pos_pdf_a if self.rival_11 else 0.0
-        direct_pdf_a = dr.select(from_pinhole, rival, nee_pdf_a)
-        return weight_emission_hit(self.h, d_vcm, d_vc, direct_pdf_a, emission_pdf_aw)
+        return weight_emission_hit(self.h, d_vcm, d_vc,
+                                   self.direct_pdf_a(from_pinhole, nee_pdf_a, pos_pdf_a),
+                                   emission_pdf_aw)
+
+    def direct_pdf_a(self, from_pinhole, nee_pdf_a, pos_pdf_a):
+        """The density with which the rival s = 1 strategy picks an emitter hit."""
+        return dr.select(from_pinhole, pos_pdf_a if self.rival_11 else 0.0, nee_pdf_a)
 
     def environment_hit(self, d_vcm, d_vc, lw, from_pinhole, nee_pdf_w, emission_pdf_aw):
         """s = 0 on a ray that escaped: the chains as the last scatter left them, and
@@ -390,3 +394,63 @@ class Weights:
         nee = dr.select(infinite, nee_pdf_w, nee_pdf_a)
         return light_first_hit(self.h, d_vc0, nee, emission_pdf_aw,
                                dr.select(infinite, 1.0, dist2), cos_hit)
+
+
+# ---------------------------------------------------------------------------
+# The pilot's balance-weight groups (optimizer.py)
+# ---------------------------------------------------------------------------
+# In a pilot pass (balance heuristic, unit rates) each contribution also reports its
+# balance weight's denominator split into path tracing (s <= 1), the light image
+# (t = 1) and connections, as the shares (u_pt, u_lt) of the total.  The s <= 1 terms
+# of a light-side strategy and the t = 1 term of a camera-side one lie at the far
+# ends of the chains: one scalar per subpath, d_end, carries them (``end_after_*``);
+# at a subpath's first vertex they are the chain itself.
+
+def end_after_hit(d_end, dist2, cos_hit, first):
+    """d_end at the vertex just found: as d_vcm at the first vertex, as d_vc beyond."""
+    return d_end * dr.select(first, dist2, 1.0) * _div(1.0, cos_hit)
+
+
+def end_after_scatter(d_end, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta, first,
+                      light_side):
+    """d_end after scattering at the current vertex.  Camera side: the t = 1 term, in
+    d_vcm's place at z_1 (d_end = d_vcm there), in d_vc's beyond.  Light side: at y_1
+    every term of the chain is s <= 1, so d_end starts as the new d_vc."""
+    start = (d_vc * pdf_rev_w + d_vcm) if light_side else d_end
+    prev = dr.select(first, start, d_end * pdf_rev_w)
+    delta_prev = dr.select(first, d_vc if light_side else 0.0, d_end) * cos_out
+    return dr.select(delta, delta_prev, _div(cos_out, pdf_fwd_w) * prev)
+
+
+def _shares(pt, lt, total):
+    return _div(pt, total), _div(lt, total)
+
+
+def groups_emission_hit(d_vcm, d_vc, d_end, from_pinhole, direct_pdf, emission_pdf):
+    """s = 0; from the pinhole the only rival is (1,1), a light-image strategy."""
+    rival = direct_pdf * d_vcm
+    total = 1.0 + rival + emission_pdf * d_vc
+    return _shares(dr.select(from_pinhole, 1.0, 1.0 + rival),
+                   dr.select(from_pinhole, rival, emission_pdf * d_end), total)
+
+
+def groups_nee(d_vcm, d_vc, d_end, first, w_light, camera_ratio, bsdf_rev_w):
+    total = w_light + 1.0 + camera_ratio * (d_vcm + d_vc * bsdf_rev_w)
+    lt = camera_ratio * dr.select(first, d_end, d_end * bsdf_rev_w)
+    return _shares(w_light + 1.0, lt, total)
+
+
+def groups_light_image(d_vcm, d_vc, d_end, first, cam_pdf_a, bsdf_rev_w):
+    chain = d_vcm + d_vc * bsdf_rev_w
+    pt = cam_pdf_a * dr.select(first, chain, d_end * bsdf_rev_w)
+    return _shares(pt, 1.0, 1.0 + cam_pdf_a * chain)
+
+
+def groups_connect(light, light_first, cam_d_vcm, cam_d_vc, cam_d_end, cam_first,
+                   cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w):
+    light_chain = light.d_vcm + light.d_vc * light_bsdf_rev_w
+    total = (1.0 + cam_bsdf_pdf_a * light_chain
+             + light_bsdf_pdf_a * (cam_d_vcm + cam_d_vc * cam_bsdf_rev_w))
+    pt = cam_bsdf_pdf_a * dr.select(light_first, light_chain, light.d_end * light_bsdf_rev_w)
+    lt = light_bsdf_pdf_a * dr.select(cam_first, cam_d_end, cam_d_end * cam_bsdf_rev_w)
+    return _shares(pt, lt, total)

@@ -30,6 +30,7 @@ from .film import FilmAccumulator
 from .mis import Weights
 from .settings import Settings
 from .budgets import BDPT, Budget, fixed_budget
+from .optimizer import MIN_SPP, MomentSample, MomentSamples, Pilot
 from .strategies import StrategyImages, StrategySet
 from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore
 from .walk import trace_camera_subpaths, trace_light_subpaths
@@ -65,6 +66,8 @@ class PassContext:
     images: StrategyImages | None = None
     connection_scale: mi.Float = None  # 1 / kappa of the pass's stored vertices
     stored: mi.UInt32 = None           # V, the stored light vertices of the pass
+    pixel: mi.UInt32 = None            # each camera lane's crop pixel (moments)
+    moments: MomentSamples | None = None   # a pilot pass's contributions (optimizer.py)
 
     def light_subpath(self, lane):
         """The light subpath camera lane ``lane`` connects to (i mod N_L)."""
@@ -94,6 +97,8 @@ class RenderResult:
     tensor: mi.TensorXf
     strategy_images: dict = field(default_factory=dict)
     length_images: dict = field(default_factory=dict)
+    kernel_history: list = field(default_factory=list)   # entries the pilot took from
+                                                           # Dr.Jit's kernel history
     spp: int = 0
     passes: int = 0
     time: float = 0.0
@@ -141,6 +146,37 @@ def check_variant() -> None:
     _llvm.check(variant)
 
 
+class _StageTimer:
+    """Kernel seconds of each stage of a pilot pass, compilation excluded (Dr.Jit's
+    kernel history, whose entries are kept in ``log`` for callers that read it too)."""
+
+    def __init__(self, on: bool, log: list):
+        self.on, self.log = on, log
+        if on:
+            self.log.extend(dr.kernel_history())
+
+    def lap(self) -> float:
+        if not self.on:
+            return 0.0
+        dr.sync_thread()
+        entries = dr.kernel_history()
+        self.log.extend(entries)
+        return sum(e.get("execution_time", 0.0) for e in entries
+                   if e["type"] == dr.KernelType.JIT) / 1000.0
+
+
+def _splat_moments(ctx, store):
+    """A pilot pass's light-image contributions as moment samples (optimizer.py)."""
+    if store is None:
+        return None
+    s = store.splats
+    value = dr.mean(mi.unpolarized_spectrum(s.items.value))
+    samples = MomentSample(pixel=ctx.camera.pixel_index(s.items.pos), f2=dr.square(value),
+                           u_pt=s.items.u_pt, u_lt=s.items.u_lt)
+    live = dr.arange(mi.UInt32, s.capacity) < dr.opaque(mi.UInt32, min(s.size(), s.capacity))
+    return samples, live
+
+
 def plan_passes(spp: int, pixels: int, max_lanes: int, explicit: int, accepted) -> list:
     """Split spp x pixels into passes (pixel offset, pixels, spp) of at most
     ``max_lanes`` lanes.  Automatic passes are equal in size: Dr.Jit keeps freed
@@ -182,7 +218,10 @@ class Renderer:
         self.emitters = Emitters(scene)
         if self.emitters.count == 0:
             warnings.warn("bdpt: the scene has no emitters; the image is black", stacklevel=2)
-        self.budget = fixed_budget(self.settings) or BDPT
+        fixed = fixed_budget(self.settings)
+        if strategy_images and fixed is None:   # the layers show every BDPT strategy
+            fixed = BDPT
+        self.budget = fixed or BDPT
         if mi.is_spectral and self.settings.light_paths not in ("auto", 0.0, 1.0):
             raise ValueError("bdpt: light_paths must be 0 or 1 in spectral variants (a light "
                              "subpath shares its wavelengths with one camera sample), got %g"
@@ -204,6 +243,15 @@ class Renderer:
         max_lanes = min(max(1024, self.settings.memory_budget // lane_bytes), 2 ** 31)
         self.plan = plan_passes(self.spp, self.pixels, max_lanes, self.settings.samples_per_pass,
                                 self._accepted_count)
+        self.pilot = None
+        if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
+            # An "auto" budget: two pilot passes of 1 spp open the render.
+            self.pilot = Pilot(mi.is_spectral)
+            pilot_spp = self._accepted_count(
+                self.settings.samples_per_pass or Pilot.spp(self.pixels, self.spp))
+            self.plan = [(0, self.pixels, pilot_spp)] * Pilot.PASSES + plan_passes(
+                self.spp - Pilot.PASSES * pilot_spp, self.pixels, max_lanes,
+                self.settings.samples_per_pass, self._accepted_count)
         self.film = FilmAccumulator(film, coalesce=self.spp >= 4, layers=layers)
         self.passes_done = 0
         self.spp_done = 0.0           # samples per pixel rendered (fractional: pixel ranges)
@@ -212,6 +260,7 @@ class Renderer:
         self._last_lanes = 0
         self._capacity = {}          # pool capacities per light subpath, raised on overflow
         self._vertices_per_path = 3.0   # stored light vertices per light subpath, last pass
+        self.kernel_history = []        # kernels the pilot's timing took from Dr.Jit's history
 
     def _accepted_count(self, n: int) -> int:
         sampler = self.sensor.sampler().clone()
@@ -245,7 +294,9 @@ class Renderer:
             dr.flush_malloc_cache()
         self._last_lanes = lanes
         start = time.perf_counter()
-        with dr.suspend_grad():
+        pilot = self.pilot is not None and index < Pilot.PASSES
+        history = dr.flag(dr.JitFlag.KernelHistory) or pilot
+        with dr.suspend_grad(), dr.scoped_set_flag(dr.JitFlag.KernelHistory, history):
             self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
         self.time += time.perf_counter() - start
         self.passes_done += 1
@@ -259,15 +310,23 @@ class Renderer:
         sampler.seed(_mix_seed(self.seed, index, stream), lanes)
         return sampler
 
-    def _rules(self, budget: Budget):
+    def _rules(self, budget: Budget, heuristic: str):
         """The strategies and weights of a budget (one pair per budget, reused)."""
-        if budget not in self._rules_cache:
+        if (budget, heuristic) not in self._rules_cache:
             strategies = StrategySet(self.settings, self.emitters.count > 0, budget)
-            self._rules_cache[budget] = (strategies, Weights(self.settings.mis, strategies))
-        return self._rules_cache[budget]
+            self._rules_cache[budget, heuristic] = (strategies, Weights(heuristic, strategies))
+        return self._rules_cache[budget, heuristic]
 
-    def _context(self, index, rays, sampler, lanes: int, spp: int, budget: Budget) -> PassContext:
-        strategies, weights = self._rules(budget)
+    def _pass_rules(self, index: int):
+        """(budget, heuristic, moment samples or None) of pass ``index``."""
+        if self.pilot is not None and index < Pilot.PASSES:
+            budget, heuristic, moments = Pilot.budget(index)
+            return budget, heuristic or self.settings.mis, moments
+        return self.budget, self.settings.mis, False
+
+    def _context(self, index, rays, sampler, lanes: int, spp: int) -> PassContext:
+        budget, heuristic, moments = self._pass_rules(index)
+        strategies, weights = self._rules(budget, heuristic)
         n_light = budget.light_subpaths(lanes) if strategies.max_light_vertices() != -1 else 0
         # MIS rates of the pass: a vertex cache's kappa from the stored vertices per light
         # subpath of the last pass (the weights need a value before the light walk).
@@ -280,23 +339,27 @@ class Renderer:
             lane=dr.arange(mi.UInt32, lanes), time=rays.ray.time,
             wavelengths=rays.ray.wavelengths, camera_weight=rays.weight,
             light_count=n_light, pick_offset=dr.opaque(mi.Float, _unit(self.seed, index)),
-            images=images)
+            images=images, pixel=rays.pixel,
+            moments=MomentSamples(lanes) if moments else None)
 
     def _render_pass(self, index, pixel_offset, n_pixels, spp, lanes):
-        budget = self.budget
+        timer = _StageTimer(self.pilot is not None and index < Pilot.PASSES, self.kernel_history)
         # Stage 1: camera rays.
         sampler = self._sampler(index, 0, lanes, spp)
         rays = self.camera.sample_rays(sampler, pixel_offset, n_pixels, spp)
         sampler.schedule_state()
         dr.eval(rays)
-        ctx = self._context(index, rays, sampler, lanes, spp, budget)
+        ctx = self._context(index, rays, sampler, lanes, spp)
+        timer.lap()
 
         # Stage 2: light subpaths: stored light vertices and t = 1 splats.
         store, light_rays = self._light_subpaths(ctx, index, spp)
+        light_seconds = timer.lap()
 
         # Stage 3: camera subpaths, with every strategy t >= 2.
         cam = trace_camera_subpaths(ctx, rays, store)
         dr.eval(cam.radiance, cam.hit, cam.rays)
+        camera_seconds = timer.lap()
 
         # Stage 4: film.
         self.film.put_camera(rays, cam.radiance, cam.hit,
@@ -307,6 +370,17 @@ class Renderer:
                                  None if ctx.images is None else ctx.images.layer_of)
         self.film.camera_samples += lanes
         self.rays += int(dr.sum(cam.rays)[0]) + int(dr.sum(light_rays)[0])
+        if timer.on:
+            self._pilot_pass(index, ctx, store, cam, light_seconds, camera_seconds, lanes)
+
+    def _pilot_pass(self, index, ctx, store, cam, light_seconds, camera_seconds, lanes):
+        """Record a pilot pass's costs; after the last one, choose the budget."""
+        stored = 0 if store is None else store.vertices.size()
+        self.pilot.record(index, light_seconds, camera_seconds, lanes, ctx.light_count, stored)
+        if ctx.moments is not None:
+            ctx.moments.count = cam.slot
+            mean = self.tensor().numpy()[..., :3].mean(axis=-1)
+            self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean).budget
 
     def _light_subpaths(self, ctx, index: int, spp: int):
         """Stage 2; runs the light walk again with larger pools if one overflowed
@@ -319,7 +393,8 @@ class Renderer:
         while True:
             store = LightVertexStore(n, n * per_path[0], n * per_path[1])
             light_rays = trace_light_subpaths(light, store)
-            dr.eval(light_rays, store.vertices.items, store.splats.items, store.first)
+            dr.eval(light_rays, store.vertices.items, store.splats.items, store.first,
+                    *([] if ctx.moments is None else [ctx.moments.items, ctx.moments.count]))
             if not store.overflowed():
                 break
             per_path[0] = max(per_path[0], -(-store.vertices.size() * 5 // (4 * n)))
@@ -343,10 +418,22 @@ class Renderer:
                             strategy_images={k: v.numpy() for k, v in layers.items() if k[0] != "k"},
                             length_images={k[1]: v.numpy() for k, v in layers.items() if k[0] == "k"},
                             spp=int(self.spp_done + 1e-9), passes=self.passes_done, time=self.time,
-                            rays=self.rays,
+                            rays=self.rays, kernel_history=list(self.kernel_history),
                             stats={"pixels": self.pixels,
                                    "lanes_per_pass": max(p[1] * p[2] for p in self.plan),
-                                   "rays_per_sample": self.rays / max(1, self.spp_done * self.pixels)})
+                                   "rays_per_sample": self.rays / max(1, self.spp_done * self.pixels),
+                                   "budget": str(self.budget), "decision": self.decision_text()})
+
+    def decision_text(self) -> str:
+        """Why the render uses its budget (for logs and the EXR header)."""
+        if self.pilot is None:
+            fixed = fixed_budget(self.settings)
+            return ("fixed by the settings" if fixed is not None else
+                    "full BDPT: strategy images" if self.strategy_images else
+                    "full BDPT: fewer than %d spp, or a film split in pixel ranges" % MIN_SPP)
+        if self.pilot.decision is None:
+            return "pilot passes pending"
+        return self.pilot.decision.describe()
 
 
 def render(scene, spp: int | None = None, seed: int = 0, sensor=0,

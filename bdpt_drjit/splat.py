@@ -14,6 +14,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from . import mis
 from .surface import eval_adjoint, finite, geometric_cosines, spectrum_nonzero
 from .vertices import Splat
 
@@ -29,10 +30,12 @@ def light_vertex_to_camera(ctx, store, si, bsdf, vertex, sample, active) -> mi.U
     active = traced & ~ctx.scene.ray_test(si.spawn_ray_to(cam.p), traced)
     # importance = pdf_w(camera) / d^2, so the camera's area density at y_i is
     # importance * cos (tech. rep. eq. 46).
-    contrib *= ctx.weights.light_to_camera(vertex.d_vcm, vertex.d_vc, vertex.s - 1,
-                                           cam.importance * cos_out, rev_w)
+    cam_pdf_a = cam.importance * cos_out
+    contrib *= ctx.weights.light_to_camera(vertex.d_vcm, vertex.d_vc, vertex.s - 1, cam_pdf_a, rev_w)
+    u_pt, u_lt = (0.0, 0.0) if ctx.moments is None else mis.groups_light_image(
+        vertex.d_vcm, vertex.d_vc, vertex.d_end, vertex.s == 2, cam_pdf_a, rev_w)
     store.splats.append(Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=vertex.s,
-                              lane=ctx.lane), active)
+                              lane=ctx.lane, u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt)), active)
     return dr.select(traced, 1, 0)
 
 
@@ -54,7 +57,10 @@ def emitter_to_camera(ctx, store, es, sample, active) -> mi.UInt32:
     contrib = le * cos_e / es.pos_pdf_a * cam.importance * ctx.camera_weight
     traced = active & spectrum_nonzero(contrib)
     active = traced & ~ctx.scene.ray_test(it.spawn_ray_to(cam.p), traced)
-    contrib *= ctx.weights.emitter_to_camera(cam.importance * cos_e, es.pos_pdf_a)
+    cam_pdf_a = cam.importance * cos_e
+    contrib *= ctx.weights.emitter_to_camera(cam_pdf_a, es.pos_pdf_a)
+    rival = cam_pdf_a / es.pos_pdf_a                 # the only rival, (0,2), is path tracing
     store.splats.append(Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=mi.UInt32(1),
-                              lane=ctx.lane), active)
+                              lane=ctx.lane, u_pt=mi.Float(rival / (1.0 + rival)),
+                              u_lt=mi.Float(1.0 / (1.0 + rival))), active)
     return dr.select(traced, 1, 0)

@@ -35,13 +35,14 @@ class LightVertex:
     beta: mi.Spectrum                # throughput from y_0 to here (Russian roulette included)
     d_vcm: mi.Float                  # MIS chain state (mis.py)
     d_vc: mi.Float
+    d_end: mi.Float                  # pilot passes: the chain's far end (mis.py)
     s: mi.UInt32                     # the light vertex count of its strategies: s = i + 1
     next: mi.UInt32                  # the lane's next stored vertex, or NONE
 
 
 # p, n, uv, sh_frame, dp_du, dp_dv, wi, shape, instance, prim_index; beta, d_vcm, d_vc,
-# s, next (single-precision RGB; spectral variants store 4 wavelengths' worth)
-RECORD_BYTES = 4 * (3 + 3 + 2 + 9 + 3 + 3 + 3 + 1 + 1 + 1 + 3 + 1 + 1 + 1 + 1)
+# d_end, s, next (single-precision RGB; spectral variants store 4 wavelengths' worth)
+RECORD_BYTES = 4 * (3 + 3 + 2 + 9 + 3 + 3 + 3 + 1 + 1 + 1 + 3 + 1 + 1 + 1 + 1 + 1)
 
 
 @dataclass
@@ -51,9 +52,11 @@ class Splat:
     value: mi.Spectrum
     s: mi.UInt32                     # its strategy (s, 1)
     lane: mi.UInt32                  # the light subpath's lane (its wavelengths)
+    u_pt: mi.Float                   # pilot passes: balance-weight groups (optimizer.py)
+    u_lt: mi.Float
 
 
-SPLAT_BYTES = 4 * (2 + 3 + 1 + 1)
+SPLAT_BYTES = 4 * (2 + 3 + 1 + 1 + 2)
 
 
 def empty(kind, n: int):

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from . import connect, splat
+from . import connect, mis, splat
 from .surface import (SurfaceRecord, adjoint_correction, eval_adjoint, geometric_cosines,
                       reverse_pdf, spectrum_nonzero)
 from .vertices import NONE, LightVertex
@@ -57,6 +57,7 @@ class PathState:
     eta: mi.Float           # product of relative IORs crossed (roulette, as Mitsuba's)
     d_vcm: mi.Float         # MIS chain state at the ray's origin (mis.py)
     d_vc: mi.Float
+    d_end: mi.Float         # pilot passes: the chain's far end (mis.end_after_scatter)
     prev: mi.Interaction3f  # the ray's origin vertex (pdf queries of the next one)
     depth: mi.UInt32        # j of the vertex z_j (or i of y_i) the ray will hit
     active: mi.Bool         # the subpath goes on
@@ -65,16 +66,18 @@ class PathState:
     radiance: mi.Spectrum   # camera walk: sum of this sample's strategies
     hit: mi.Bool            # camera walk: the camera ray hit a surface (film alpha)
     last_item: mi.UInt32    # light walk: this lane's last stored vertex (or NONE)
+    slot: mi.UInt32         # camera walk, pilot passes: moment samples recorded
 
     @staticmethod
     def start(ray, beta, d_vcm, d_vc, prev, active) -> "PathState":
         n = dr.width(ray.o)
         return PathState(ray=mi.Ray3f(ray), beta=mi.Spectrum(beta), rr_beta=dr.ones(mi.Spectrum, n),
                          eta=dr.ones(mi.Float, n), d_vcm=mi.Float(d_vcm), d_vc=mi.Float(d_vc),
+                         d_end=mi.Float(d_vcm),
                          prev=prev, depth=dr.ones(mi.UInt32, n), active=mi.Bool(active),
                          rays=dr.zeros(mi.UInt32, n), lw=dr.ones(mi.Float, n),
                          radiance=dr.zeros(mi.Spectrum, n), hit=dr.zeros(mi.Bool, n),
-                         last_item=dr.full(mi.UInt32, NONE, n))
+                         last_item=dr.full(mi.UInt32, NONE, n), slot=dr.zeros(mi.UInt32, n))
 
 
 def _point(p, n, time, wavelengths) -> mi.Interaction3f:
@@ -106,7 +109,8 @@ def trace_light_subpaths(ctx, store) -> mi.UInt32:
         _light_vertex_mis(ctx, es, state, si)
         connectible = state.active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         vertex = LightVertex(surface=SurfaceRecord.of(si), beta=mi.Spectrum(state.beta),
-                             d_vcm=state.d_vcm, d_vc=state.d_vc, s=s, next=mi.UInt32(NONE))
+                             d_vcm=state.d_vcm, d_vc=state.d_vc, d_end=state.d_end, s=s,
+                             next=mi.UInt32(NONE))
         state.rays += splat.light_vertex_to_camera(
             ctx, store, si, bsdf, vertex, u.endpoint, connectible & ctx.strategies.enabled(s, 1))
         state.last_item = store.add_vertex(vertex, ctx.lane, state.last_item,
@@ -131,6 +135,8 @@ def _light_vertex_mis(ctx, es, state: PathState, si):
     d_vcm1, d_vc1 = ctx.weights.first_light_vertex(state.d_vc, nee_pdf_a, nee_pdf_w, es.infinite,
                                                    es.emission_pdf, dist2, cos_in)
     d_vcm, d_vc = ctx.weights.after_hit(state.d_vcm, state.d_vc, dist2, cos_in)
+    if ctx.moments is not None:
+        state.d_end = mis.end_after_hit(state.d_end, dist2, cos_in, False)
     state.d_vcm = dr.select(first, d_vcm1, d_vcm)
     state.d_vc = dr.select(first, d_vc1, d_vc)
 
@@ -167,8 +173,10 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
         if ctx.emitters.environment is not None:
             _add(ctx, state, 0, t, connect.environment_hit(ctx, state, escaped))
         cos_in = dr.abs(dr.dot(si.n, state.ray.d))
-        state.d_vcm, state.d_vc = ctx.weights.after_hit(
-            state.d_vcm, state.d_vc, dr.squared_norm(si.p - state.prev.p), cos_in)
+        dist2 = dr.squared_norm(si.p - state.prev.p)
+        state.d_vcm, state.d_vc = ctx.weights.after_hit(state.d_vcm, state.d_vc, dist2, cos_in)
+        if ctx.moments is not None:
+            state.d_end = mis.end_after_hit(state.d_end, dist2, cos_in, state.depth == 1)
         connectible = state.active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         if ctx.emitters.count:
             _add(ctx, state, 0, t, connect.emission_hit(ctx, state, si))
@@ -227,6 +235,9 @@ def _scatter(ctx, state: PathState, si, bsdf, u: DepthSamples, active, importanc
     else:
         pdf_rev_w = reverse_pdf(bsdf, IMPORTANCE, si, bs.wo, active)
     # Lanes that stop keep garbage from here on; nothing reads it.
+    if ctx.moments is not None:
+        state.d_end = mis.end_after_scatter(state.d_end, state.d_vcm, state.d_vc, cos_out, bs.pdf,
+                                            pdf_rev_w, delta, state.depth == 1, importance)
     state.d_vcm, state.d_vc = ctx.weights.after_scatter(state.d_vcm, state.d_vc, cos_out,
                                                         bs.pdf, pdf_rev_w, delta, state.depth)
     state.beta = mi.Spectrum(state.beta * weight)       # (spectral arithmetic may

@@ -56,12 +56,15 @@ class Method:
         return dict(self.options)
 
 
-BDPT_POWER = Method("bdpt-power", "BDPT power", "bdpt", (("mis", "power"),), "C0", "-")
-BDPT_BALANCE = Method("bdpt-balance", "BDPT balance", "bdpt", (("mis", "balance"),), "C1", "-")
-BDPT_UNIFORM = Method("bdpt-uniform", "BDPT uniform", "bdpt", (("mis", "uniform"),), "C2", "-")
+# Veach's BDPT: one light subpath per camera sample, every connection (fixed budget).
+_FULL = (("light_paths", 1), ("connections", "all"))
+BDPT_AUTO = Method("bdpt-auto", "BDPT, efficiency-aware budgets (default)", "bdpt", (), "k", "-")
+BDPT_POWER = Method("bdpt-power", "BDPT power", "bdpt", (("mis", "power"),) + _FULL, "C0", "-")
+BDPT_BALANCE = Method("bdpt-balance", "BDPT balance", "bdpt", (("mis", "balance"),) + _FULL, "C1", "-")
+BDPT_UNIFORM = Method("bdpt-uniform", "BDPT uniform", "bdpt", (("mis", "uniform"),) + _FULL, "C2", "-")
 BDPT_LAFORTUNE = Method("bdpt-lafortune", "BDPT lafortune", "bdpt", (("mis", "lafortune"),), "C6", "-")
 BDPT_NO_LT = Method("bdpt-no-lt", "BDPT without light image", "bdpt",
-                    (("mis", "power"), ("light_image", False)), "C4", "--")
+                    (("mis", "power"), ("light_image", False)) + _FULL, "C4", "--")
 BDPT_PT = Method("bdpt-pt", "BDPT engine, PT strategies only", "bdpt",
                  (("mis", "power"), ("strategy_subset", "pt")), "C7", ":")
 BDPT_LT = Method("bdpt-lt", "BDPT engine, LT strategies only", "bdpt",
@@ -69,7 +72,7 @@ BDPT_LT = Method("bdpt-lt", "BDPT engine, LT strategies only", "bdpt",
 PATH = Method("path", "Mitsuba path", "mitsuba", (("type", "path"),), "C3", "-")
 PTRACER = Method("ptracer", "Mitsuba ptracer", "mitsuba", (("type", "ptracer"),), "C5", "-.")
 
-METHODS = {m.name: m for m in (BDPT_POWER, BDPT_BALANCE, BDPT_UNIFORM, BDPT_LAFORTUNE, BDPT_NO_LT,
+METHODS = {m.name: m for m in (BDPT_AUTO, BDPT_POWER, BDPT_BALANCE, BDPT_UNIFORM, BDPT_LAFORTUNE, BDPT_NO_LT,
                                 BDPT_PT, BDPT_LT, PATH, PTRACER)}
 
 
@@ -127,8 +130,10 @@ class Timing:
         return max(self.wall - self.compile, 1e-9)
 
 
-def _history_timing(wall: float) -> Timing:
-    hist = dr.kernel_history()
+def _history_timing(wall: float, taken=()) -> Timing:
+    """Timing from Dr.Jit's kernel history, plus entries a renderer ``taken`` from it
+    (bdpt's pilot passes time their kernels with it)."""
+    hist = list(taken) + dr.kernel_history()
     t = Timing(wall=wall)
     for e in hist:
         if e["type"] == dr.KernelType.JIT:
@@ -182,7 +187,8 @@ def render(method: Method, scene, spp: int, seed: int, max_depth: int,
                               strategy_images=strategy_images, **method.opts)
         img = np.asarray(r.image)
         wall = time.perf_counter() - t0
-        return RenderOut(img, _history_timing(wall), spp, film_pixels(scene), rays=float(r.rays),
+        return RenderOut(img, _history_timing(wall, r.kernel_history), spp, film_pixels(scene),
+                         rays=float(r.rays),
                          passes=r.passes, strategies=r.strategies)
     integ = mi.load_dict({**method.opts, "max_depth": max_depth})
     t0 = time.perf_counter()

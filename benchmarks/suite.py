@@ -26,7 +26,7 @@ from . import common as C
 from . import throughput as TP
 from .scenes import PYRAMID_SCENES, SCENE_LIST, SCENES
 
-ALL_METHODS = ["bdpt-power", "bdpt-balance", "bdpt-uniform", "bdpt-lafortune", "bdpt-no-lt",
+ALL_METHODS = ["bdpt-auto", "bdpt-power", "bdpt-balance", "bdpt-uniform", "bdpt-lafortune", "bdpt-no-lt",
                "bdpt-pt", "bdpt-lt", "path", "ptracer"]
 SECTIONS = ("error", "throughput", "scaling", "rss", "cold", "pyramid")
 CORNELL = C.ROOT / "scenes" / "cornell-box.xml"

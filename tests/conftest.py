@@ -1,6 +1,7 @@
 """Shared test fixtures and helpers: scene paths, the shared external scenes, Mitsuba's
 own renders, the 16x16 Cornell box.  The statistics are in stats.py."""
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +50,17 @@ def specular_pixels(scene, jitter=16):
     si = scene.ray_intersect(ray)
     delta = si.is_valid() & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Delta)
     return np.array(delta).reshape(h, w, jitter).any(axis=2)
+
+
+@pytest.fixture(autouse=True)
+def fixed_budget(request, monkeypatch):
+    """Tests are deterministic: the default budget ("auto", budgets.py) is chosen from
+    measured kernel times, so renders here use full BDPT (light_paths 1, connections
+    "all"), the budget the settings fix, unless a test is marked ``auto_budget``."""
+    if request.node.get_closest_marker("auto_budget") is None:
+        from bdpt_drjit.budgets import BDPT, fixed_budget as fixed
+        render_module = sys.modules["bdpt_drjit.render"]
+        monkeypatch.setattr(render_module, "fixed_budget", lambda s: fixed(s) or BDPT)
 
 
 @pytest.fixture(scope="module")

@@ -77,7 +77,8 @@ def test_light_walk_scatter_transports_the_bsdf_albedo(alpha, cos_i, side):
     scene, si = _interface_hits(alpha, cos_i, side, n)
     bsdf = si.bsdf()
     settings = Settings(rr_depth=1000)
-    ctx = SimpleNamespace(weights=Weights("power", StrategySet(settings, True)), settings=settings)
+    ctx = SimpleNamespace(weights=Weights("power", StrategySet(settings, True)), settings=settings,
+                          moments=None)
     state = PathState.start(dr.zeros(mi.Ray3f, n), dr.ones(mi.Spectrum, n), 0.0, 0.0,
                             dr.zeros(mi.Interaction3f, n), True)
     _scatter(ctx, state, si, bsdf, DepthSamples.draw(_sampler(1, n)), dr.full(mi.Bool, True, n),

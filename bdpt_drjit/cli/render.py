@@ -35,7 +35,8 @@ class Outputs:
         is reported (once per distinct problem) and rendering goes on; the final
         write must succeed."""
         res = renderer.result()
-        self.meta.update(spp=res.spp, passes=res.passes, render_time=float(res.time))
+        self.meta.update(spp=res.spp, passes=res.passes, render_time=float(res.time),
+                         budget=res.stats["budget"], budget_decision=res.stats["decision"])
         failed = "; ".join(self.write(res, self.meta))
         if failed and final:
             raise CLIError("%s (the render of %d spp was not saved there)" % (failed, res.spp))
@@ -93,7 +94,7 @@ def _renderer(args, scene, settings):
     renderer = make()
     timed = args.time is not None or args.checkpoint is not None
     if timed and not chose_pass_size and renderer.plan[0][1] == renderer.pixels:
-        auto = renderer.plan[0][2]
+        auto = max(p[2] for p in renderer.plan)
         per_pass = max(1, min(renderer.spp // 16, auto,
                               _TIMED_PASS_LANES[args.variant.split("_")[0]] // renderer.pixels))
         if per_pass != auto:
@@ -115,7 +116,7 @@ def _metadata(args, path: Path, params: dict, renderer) -> dict:
         if p.name == "technique":
             value = "all" if value is None else "%d,%d" % value
         meta[p.name] = int(value) if p.kind is bool else value
-    meta["samples_per_pass"] = renderer.plan[0][2]
+    meta["samples_per_pass"] = max(p[2] for p in renderer.plan)
     return meta
 
 
@@ -176,6 +177,8 @@ def _report(res, renderer, outputs, reason, wall, stop, args) -> None:
     elif reason == "time":
         eprint("bdpt: time budget of %s used up after %d of %d spp"
                % (fmt_time(args.time), res.spp, renderer.spp))
+    if not args.quiet:
+        eprint("bdpt: budget %s (%s)" % (res.stats["budget"], res.stats["decision"]))
     w, h = (int(x) for x in renderer.sensor.film().crop_size())
     rate = res.spp * renderer.pixels / wall if wall > 0 else 0.0
     print("bdpt: %dx%d, %d spp (%d pass%s) in %s, %ssamples/s -> %s"

@@ -1,0 +1,195 @@
+"""Efficiency-aware budgets (Grittmann, Yazici, Georgiev, Slusallek 2022): choose the
+budget (budgets.py) whose cost times summed relative second moment is smallest.
+
+The pilot.  Two passes of one sample per pixel open a render whose budget is "auto":
+a path-tracing pass (light_paths 0), then a full BDPT pass (light_paths 1,
+connections "all") with the balance heuristic, in which every contribution also
+reports its balance weight split into three groups of strategies: path tracing
+(s <= 1), the light image (t = 1) and connections (u_pt + u_lt + u_con = 1; the two
+ends of the ratio chains isolate u_pt and u_lt, walk.PathState.d_end).  Both passes
+are part of the image.
+
+Second moments.  The balance-heuristic combination of a candidate c, whose rates are
+1, r_c and kappa_c for the three groups (mis.py), has second moment
+integral f^2 / P_c, P_c = sum of rate x density over the strategies.  A pilot sample
+F = f / P_pilot estimates it as F^2 P_pilot / P_c = F^2 / (u_pt + r_c u_lt + kappa_c u_con)
+(the paper's reweighting by the ratio of balance sums).  A path only light subpaths
+can sample (u_pt = 0) makes path tracing's moment infinite: it is never chosen where
+it would miss light.  Each pixel's moment is divided by its squared mean (the pilot
+image, box-filtered) and the sum over pixels is the candidate's relative error.
+
+Costs come from this engine's own kernel times in the pilot (no constants fitted to
+another renderer): seconds per camera sample of path tracing, per light subpath,
+and per camera sample for connecting to a whole light subpath; a vertex cache of M
+costs M / (stored vertices per light subpath) of the latter.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from .budgets import Budget
+from .vertices import empty
+
+RATIOS = (0.0, 0.25, 0.5, 1.0, 2.0)
+CACHE_PICKS = (1, 2)
+MIN_SPP = 16                   # fewer samples: the pilot would cost too much
+PILOT_LANES = 1 << 14          # a pilot pass's samples at least (timing needs work)
+BLUR = 4                       # radius of the box filter on the pilot's mean image
+
+
+def candidates(spectral: bool) -> list[Budget]:
+    ratios = (0.0, 1.0) if spectral else RATIOS
+    out = [Budget(0.0, 0)]
+    for r in ratios[1:]:
+        out += [Budget(r, 0), Budget(r, "all")] + [Budget(r, m) for m in CACHE_PICKS]
+    return out
+
+
+@dataclass
+class MomentSample:
+    """One pilot contribution: its pixel, F^2 (luminance) and balance-weight groups."""
+    pixel: mi.UInt32
+    f2: mi.Float
+    u_pt: mi.Float
+    u_lt: mi.Float
+
+
+class MomentSamples:
+    """A pilot pass's contributions.  Camera-side ones go to SLOTS slots per camera
+    lane, counted in the walk's state (no atomics; more are dropped); light-image
+    ones travel in the splat records (vertices.Splat's u_pt, u_lt)."""
+
+    SLOTS = 32
+
+    def __init__(self, lanes: int):
+        self.lanes = lanes
+        self.items = empty(MomentSample, lanes * self.SLOTS)
+        self.count = dr.zeros(mi.UInt32, lanes)           # slots used, per lane
+        dr.make_opaque(self.items, self.count)
+
+    def add(self, slot, lane, pixel, value, u_pt, u_lt, active):
+        """Record a camera-side contribution in the lane's next slot; returns the slot
+        count."""
+        lum = dr.mean(mi.unpolarized_spectrum(value))   # RGB / spectral / mono alike
+        ok = active & (lum != 0) & (slot < self.SLOTS)
+        dr.scatter(self.items, MomentSample(pixel=mi.UInt32(pixel), f2=mi.Float(dr.square(lum)),
+                                            u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt)),
+                   lane * self.SLOTS + slot, ok)
+        return slot + dr.select(ok, 1, 0)
+
+    def moments(self, rates: np.ndarray, pixels: int, splats=None) -> np.ndarray:
+        """Per candidate (rows of ``rates``: r, kappa) and pixel, the summed second
+        moment of the candidate's balance estimator, from these samples and the
+        pass's splats (a ``MomentSample`` of them, with its validity)."""
+        out = dr.zeros(mi.Float, len(rates) * pixels)
+        idx = dr.arange(mi.UInt32, self.lanes * self.SLOTS)
+        live = idx % self.SLOTS < dr.gather(mi.UInt32, self.count, idx // self.SLOTS)
+        for items, valid in [(self.items, live)] + ([] if splats is None else [splats]):
+            u_con = dr.maximum(1.0 - items.u_pt - items.u_lt, 0.0)
+            for c, (r, kappa) in enumerate(rates):
+                share = (items.u_pt + dr.opaque(mi.Float, r) * items.u_lt
+                         + dr.opaque(mi.Float, kappa) * u_con)
+                # A share of 0: the candidate cannot sample this path (infinite moment).
+                moment = items.f2 / dr.maximum(share, 1e-9)
+                dr.scatter_reduce(dr.ReduceOp.Add, out, moment,
+                                  dr.opaque(mi.UInt32, c * pixels) + items.pixel, valid)
+        return np.array(out).reshape(len(rates), pixels)
+
+
+@dataclass
+class Costs:
+    """Seconds of kernel time, measured in the pilot."""
+    path_per_sample: float = 0.0      # camera walk with s <= 1, per camera sample
+    light_per_path: float = 0.0       # light walk with t = 1 splats, per light subpath
+    connect_per_sample: float = 0.0   # connecting to a whole light subpath, per sample
+    stored_per_path: float = 1.0      # stored light vertices per light subpath
+
+    def of(self, b: Budget) -> float:
+        cost = self.path_per_sample + b.light_ratio * self.light_per_path
+        if b.connects:
+            full = self.connect_per_sample
+            cost += full if b.connections == "all" else full * min(
+                1.0, b.connections / max(self.stored_per_path, 1e-3))
+        return cost
+
+
+@dataclass
+class Decision:
+    budget: Budget
+    table: list = field(default_factory=list)       # (budget, cost, moment, efficiency)
+
+    def describe(self) -> str:
+        best = self.table[0][3] if self.table else 1.0
+        rows = ["%s: relative efficiency %.2f" % (b, e / best) for b, _, _, e in self.table[:5]]
+        return "chose %s (%s)" % (self.budget, "; ".join(rows))
+
+
+def decide(cands: list[Budget], moments: np.ndarray, mean: np.ndarray, costs: Costs) -> Decision:
+    """The candidate of least cost x summed relative second moment."""
+    mean2 = np.maximum(np.square(_blur(mean)), 1e-4 * max(float(np.mean(mean)) ** 2, 1e-12))
+    relative = (moments / mean2.reshape(1, -1)).sum(axis=1)
+    rows = []
+    for b, m in zip(cands, relative):
+        cost = costs.of(b)
+        rows.append((b, cost, float(m), 1.0 / max(cost * m, 1e-30)))
+    rows.sort(key=lambda row: -row[3])
+    return Decision(budget=rows[0][0], table=rows)
+
+
+def _blur(image: np.ndarray) -> np.ndarray:
+    """A box filter of radius BLUR (the pilot's mean is noisy)."""
+    h, w = image.shape
+    padded = np.pad(image, BLUR, mode="edge")
+    c = padded.cumsum(0).cumsum(1)
+    c = np.pad(c, ((1, 0), (1, 0)))
+    k = 2 * BLUR + 1
+    return (c[k:k + h, k:k + w] - c[:h, k:k + w] - c[k:k + h, :w] + c[:h, :w]) / (k * k)
+
+
+class Pilot:
+    """The pilot passes of an "auto" render (module docstring) and its decision."""
+
+    PASSES = 2
+
+    @staticmethod
+    def spp(pixels: int, total_spp: int) -> int:
+        """Samples per pixel of each pilot pass: enough lanes to time the kernels,
+        at most 1/16 of the render."""
+        return max(1, min(-(-PILOT_LANES // pixels), total_spp // 16))
+
+    def __init__(self, spectral: bool):
+        self.candidates = candidates(spectral)
+        self.costs = Costs()
+        self.decision: Decision | None = None
+        self._path_camera = 0.0          # seconds per sample of the path-tracing pass
+
+    @staticmethod
+    def budget(index: int):
+        """(budget, heuristic, with moments) of pilot pass ``index``."""
+        if index == 0:
+            return Budget(0.0, 0), None, False
+        return Budget(1.0, "all"), "balance", True
+
+    def record(self, index: int, light_seconds: float, camera_seconds: float, lanes: int,
+               light_subpaths: int, stored: int) -> None:
+        """Kernel times of a pilot pass's walks (compilation excluded)."""
+        if index == 0:
+            self._path_camera = camera_seconds / lanes
+            self.costs.path_per_sample = self._path_camera
+            return
+        self.costs.light_per_path = light_seconds / max(light_subpaths, 1)
+        self.costs.connect_per_sample = max(camera_seconds / lanes - self._path_camera, 0.0)
+        self.costs.stored_per_path = stored / max(light_subpaths, 1)
+
+    def decide(self, samples: MomentSamples, splats, mean: np.ndarray) -> Decision:
+        """The budget for the rest of the render, from the BDPT pilot's samples and the
+        image of both pilot passes (its luminance, (H, W))."""
+        rates = np.array([[b.light_ratio, b.kappa(1, self.costs.stored_per_path)]
+                          for b in self.candidates])
+        moments = samples.moments(rates, mean.size, splats)
+        self.decision = decide(self.candidates, moments, mean, self.costs)
+        return self.decision
