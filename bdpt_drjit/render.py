@@ -361,8 +361,10 @@ class Renderer:
         dr.eval(cam.radiance, cam.hit, cam.rays)
         camera_seconds = timer.lap()
 
-        # Stage 4: film.
-        self.film.put_camera(rays, cam.radiance, cam.hit,
+        # Stage 4: film.  Alpha as Mitsuba's path: 1 where the camera ray hit a surface,
+        # everywhere if an environment shows.
+        opaque = self.emitters.environment is not None and not self.settings.hide_emitters
+        self.film.put_camera(rays, cam.radiance, cam.hit | opaque,
                              None if ctx.images is None else ctx.images.values, lanes)
         if store is not None:
             self.film.put_splats(store.splats.items, store.splats.size(), ctx.wavelengths,

@@ -292,3 +292,35 @@ def test_strategy_subsets_match_their_mitsuba_counterparts(box, subset, ref):
     ours = [bdpt_drjit.render(box, spp=32, seed=s, max_depth=4, strategy_subset=subset).image for s in range(10)]
     theirs = [mitsuba_render(box, ref, 64, seed=40 + s, max_depth=4) for s in range(10)]
     assert_statistically_equal(ours, theirs, what="strategy_subset=" + subset)
+
+
+@pytest.mark.parametrize("environment", [False, True])
+def test_alpha_matches_path(environment):
+    """With an rgba film, alpha is 1 where camera rays hit a surface and 0 where they
+    escape (1 everywhere under a visible environment), as in Mitsuba's path."""
+    d = mi.cornell_box()
+    d["sensor"]["film"].update(width=24, height=16, pixel_format="rgba")
+    if environment:
+        d["sky"] = {"type": "constant", "radiance": {"type": "rgb", "value": 0.1}}
+    scene = mi.load_dict(d)
+    ours = [bdpt_drjit.render(scene, spp=16, seed=s, max_depth=3).image[..., 3:] for s in range(8)]
+    ref = [mitsuba_render(scene, "path", 16, seed=100 + s, max_depth=3)[..., 3:] for s in range(8)]
+    assert ours[0].shape == ref[0].shape == (16, 24, 1)
+    if environment:
+        assert np.all(np.concatenate(ours) == 1) and np.all(np.concatenate(ref) == 1)
+    else:
+        assert 0.5 < np.mean(ours) < 0.8          # the box's opening shows the void
+        assert_statistically_equal([np.repeat(o, 3, -1) for o in ours],
+                                   [np.repeat(r, 3, -1) for r in ref], what="alpha")
+
+
+def test_strategy_images_are_bounded_at_unbounded_depth(box):
+    """max_depth -1 with strategy images: one layer per (s, t) up to k = LAYER_K, one per
+    path length up to DEEP_K, one for all longer paths; together they are the image."""
+    from bdpt_drjit.strategies import DEEP_K, LAYER_K
+    res = bdpt_drjit.render(box, spp=8, seed=2, max_depth=-1, strategy_images=True)
+    assert max(s + t - 1 for s, t in res.strategy_images) <= LAYER_K
+    assert set(res.length_images) <= set(range(LAYER_K + 1, DEEP_K + 2))
+    assert 3 * (len(res.strategy_images) + len(res.length_images)) < 1024
+    total = sum(res.strategy_images.values()) + sum(res.length_images.values())
+    np.testing.assert_allclose(total, res.image, rtol=1e-4, atol=1e-5)
