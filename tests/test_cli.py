@@ -568,3 +568,16 @@ def test_exr_failed_write_keeps_old_file(tmp_path):
     img, meta = read_exr(path)
     assert np.all(img == 1) and meta["spp"] == 1
     assert written(tmp_path) == ["keep.exr"]
+
+
+def test_strategy_images_at_unbounded_depth_stay_readable(tmp_path):
+    """--strategy-images with max_depth -1 writes a bounded number of layers (per
+    (s,t) up to k = 8, per path length up to 16, then one), well under OpenImageIO's
+    1024-channel limit; they add up to the image."""
+    out = tmp_path / "deep.exr"
+    ok(run_cli("render", CORNELL, "-D", "resx=32", "-D", "resy=18", "--spp", 4,
+               "--max-depth", -1, "--strategy-images", "-o", out))
+    layers, _ = read_layers(tmp_path / "deep.strategies.exr")
+    named = {k: v for k, v in layers.items() if k}
+    assert len(named) <= 53 and 3 * len(layers) < 1024
+    np.testing.assert_allclose(sum(named.values()), layers[""], rtol=1e-4, atol=1e-5)
