@@ -112,14 +112,15 @@ class Camera:
 
 
     def sample_rays(self, sampler: mi.Sampler, pixel_offset: int, n_pixels: int,
-                    spp: int) -> CameraRays:
-        """One primary ray per lane: pixel (offset + lane // spp) of the sampled grid
-        (crop window, plus the filter border if sampled), film sizes kept opaque."""
+                    spp: int, stride: int = 1) -> CameraRays:
+        """One primary ray per lane: pixel (offset + (lane // spp) stride) of the
+        sampled grid (crop window, plus the filter border if sampled), film sizes kept
+        opaque."""
         sensor, film = self.sensor, self.sensor.film()
         border = film.rfilter().border_size() if film.sample_border() else 0
         grid_w = dr.opaque(mi.Int32, int(film_grid(film)[0]))
         idx = mi.Int32(dr.arange(mi.UInt32, n_pixels * spp) // dr.opaque(mi.UInt32, spp)
-                       + dr.opaque(mi.UInt32, pixel_offset))
+                       * dr.opaque(mi.UInt32, stride) + dr.opaque(mi.UInt32, pixel_offset))
         offset = mi.ScalarVector2i(film.crop_offset())
         corner = mi.Vector2i(dr.opaque(mi.Int32, offset.x - border),
                              dr.opaque(mi.Int32, offset.y - border))

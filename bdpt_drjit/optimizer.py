@@ -157,8 +157,8 @@ class Pilot:
 
     @staticmethod
     def spp(pixels: int, total_spp: int) -> int:
-        """Samples per pixel of each pilot pass: enough lanes to time the kernels,
-        at most 1/16 of the render."""
+        """Samples per pixel of the pilot round: enough lanes in each half of the
+        pixels to time the kernels, at most 1/16 of the render."""
         return max(1, min(-(-PILOT_LANES // pixels), total_spp // 16))
 
     def __init__(self, spectral: bool):

@@ -243,15 +243,9 @@ class Renderer:
         max_lanes = min(max(1024, self.settings.memory_budget // lane_bytes), 2 ** 31)
         self.plan = plan_passes(self.spp, self.pixels, max_lanes, self.settings.samples_per_pass,
                                 self._accepted_count)
-        self.pilot = None
+        self.pilot, self._stride = None, {}
         if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
-            # An "auto" budget: two pilot passes of 1 spp open the render.
-            self.pilot = Pilot(mi.is_spectral)
-            pilot_spp = self._accepted_count(
-                self.settings.samples_per_pass or Pilot.spp(self.pixels, self.spp))
-            self.plan = [(0, self.pixels, pilot_spp)] * Pilot.PASSES + plan_passes(
-                self.spp - Pilot.PASSES * pilot_spp, self.pixels, max_lanes,
-                self.settings.samples_per_pass, self._accepted_count)
+            self._plan_pilot(max_lanes)
         self.film = FilmAccumulator(film, coalesce=self.spp >= 4, layers=layers)
         self.passes_done = 0
         self.spp_done = 0.0           # samples per pixel rendered (fractional: pixel ranges)
@@ -261,6 +255,20 @@ class Renderer:
         self._capacity = {}          # pool capacities per light subpath, raised on overflow
         self._vertices_per_path = 3.0   # stored light vertices per light subpath, last pass
         self.kernel_history = []        # kernels the pilot's timing took from Dr.Jit's history
+
+    def _plan_pilot(self, max_lanes: int) -> None:
+        """An "auto" budget: the render opens with one round of pilot passes, path
+        tracing on the even pixels and BDPT on the odd ones (optimizer.py), so that
+        every pixel has the same samples after them and the pilot costs half a BDPT
+        round; then the rest of the samples."""
+        self.pilot = Pilot(mi.is_spectral)
+        spp = self._accepted_count(self.settings.samples_per_pass
+                                   or Pilot.spp(self.pixels, self.spp))
+        even, odd = (self.pixels + 1) // 2, self.pixels // 2
+        self.plan = [(0, even, spp), (1, odd, spp)] + plan_passes(
+            self.spp - spp, self.pixels, max_lanes, self.settings.samples_per_pass,
+            self._accepted_count)
+        self._stride = {0: 2, 1: 2}
 
     def _accepted_count(self, n: int) -> int:
         sampler = self.sensor.sampler().clone()
@@ -346,7 +354,8 @@ class Renderer:
         timer = _StageTimer(self.pilot is not None and index < Pilot.PASSES, self.kernel_history)
         # Stage 1: camera rays.
         sampler = self._sampler(index, 0, lanes, spp)
-        rays = self.camera.sample_rays(sampler, pixel_offset, n_pixels, spp)
+        rays = self.camera.sample_rays(sampler, pixel_offset, n_pixels, spp,
+                                       self._stride.get(index, 1))
         sampler.schedule_state()
         dr.eval(rays)
         ctx = self._context(index, rays, sampler, lanes, spp)

@@ -184,9 +184,11 @@ def test_no_emitters_warns_and_renders_black(tmp_path):
 @contextlib.contextmanager
 def background_render(out, *extra, stderr=subprocess.PIPE):
     """A render of ~2000 passes (far longer than a test waits), killed if the test
-    leaves it running."""
+    leaves it running.  Fixed budgets: every pass is a round of 2 spp (an "auto"
+    render opens with a pilot round of two half passes)."""
     proc = subprocess.Popen([sys.executable, "-m", "bdpt_drjit", "render", CORNELL, *TINY,
                              "--spp", "4096", "--samples-per-pass", "2", "--max-depth", "3",
+                             "--light-paths", "1", "--connections", "all",
                              "-o", str(out), *map(str, extra)],
                             stdout=subprocess.PIPE, stderr=stderr, text=True, env=cli_env())
     try:
@@ -255,11 +257,13 @@ def test_time_budget_on_a_film_split_in_pixel_ranges(tmp_path):
 
 def test_time_and_checkpoint_use_many_passes(tmp_path):
     out = tmp_path / "ck.exr"
-    # --time / --checkpoint without --samples-per-pass: spp/16 per pass.
+    # --time / --checkpoint without --samples-per-pass: spp/16 per pass; with the
+    # default "auto" budget the first round is the optimizer's two half passes.
     ok(run_cli("render", CORNELL, *TINY, "--spp", 32, "--max-depth", 3, "--time", 300,
                "--checkpoint", 0.01, "-o", out))
     _, meta = read_exr(out)
-    assert meta["spp"] == 32 and meta["passes"] == 16 and meta["samples_per_pass"] == 2
+    assert meta["spp"] == 32 and meta["passes"] == 16 + 1 and meta["samples_per_pass"] == 2
+    assert "chose" in meta["budget_decision"]
 
 
 def _wait_until_importing(proc, library="drjit", timeout=60.0):

@@ -93,7 +93,7 @@ def _renderer(args, scene, settings):
                                  args.strategy_images, settings)
     renderer = make()
     timed = args.time is not None or args.checkpoint is not None
-    if timed and not chose_pass_size and renderer.plan[0][1] == renderer.pixels:
+    if timed and not chose_pass_size and renderer.plan[-1][1] == renderer.pixels:
         auto = max(p[2] for p in renderer.plan)
         per_pass = max(1, min(renderer.spp // 16, auto,
                               _TIMED_PASS_LANES[args.variant.split("_")[0]] // renderer.pixels))
