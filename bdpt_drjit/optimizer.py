@@ -32,7 +32,7 @@ import mitsuba as mi
 import numpy as np
 
 from .budgets import Budget
-from .vertices import empty
+from .vertices import empty, gather
 
 RATIOS = (0.0, 0.25, 0.5, 1.0, 2.0)
 CACHE_PICKS = (1, 2)
@@ -81,23 +81,24 @@ class MomentSamples:
                    lane * self.SLOTS + slot, ok)
         return slot + dr.select(ok, 1, 0)
 
-    def moments(self, rates: np.ndarray, pixels: int, splats=None) -> np.ndarray:
-        """Per candidate (rows of ``rates``: r, kappa) and pixel, the summed second
-        moment of the candidate's balance estimator, from these samples and the
-        pass's splats (a ``MomentSample`` of them, with its validity)."""
-        out = dr.zeros(mi.Float, len(rates) * pixels)
+    def relative_moments(self, rates: np.ndarray, mean2: mi.Float, splats=None) -> np.ndarray:
+        """Per candidate (rows of ``rates``: r, kappa), the second moment of its
+        balance estimator relative to each pixel's squared mean ``mean2``, summed over
+        these samples and the pass's splats (a ``MomentSample`` of them, with its
+        validity)."""
         idx = dr.arange(mi.UInt32, self.lanes * self.SLOTS)
         live = idx % self.SLOTS < dr.gather(mi.UInt32, self.count, idx // self.SLOTS)
+        sums = np.zeros(len(rates))
         for items, valid in [(self.items, live)] + ([] if splats is None else [splats]):
-            u_con = dr.maximum(1.0 - items.u_pt - items.u_lt, 0.0)
-            for c, (r, kappa) in enumerate(rates):
-                share = (items.u_pt + dr.opaque(mi.Float, r) * items.u_lt
-                         + dr.opaque(mi.Float, kappa) * u_con)
-                # A share of 0: the candidate cannot sample this path (infinite moment).
-                moment = items.f2 / dr.maximum(share, 1e-9)
-                dr.scatter_reduce(dr.ReduceOp.Add, out, moment,
-                                  dr.opaque(mi.UInt32, c * pixels) + items.pixel, valid)
-        return np.array(out).reshape(len(rates), pixels)
+            keep = dr.compress(valid)                # the recorded samples only
+            s = gather(items, keep)
+            relative = np.array(s.f2 / dr.gather(mi.Float, mean2, s.pixel), np.float64)
+            u_pt, u_lt = np.array(s.u_pt, np.float64), np.array(s.u_lt, np.float64)
+            u_con = np.maximum(1.0 - u_pt - u_lt, 0.0)
+            share = u_pt + rates[:, :1] * u_lt + rates[:, 1:] * u_con
+            # A share of 0: the candidate cannot sample this path (infinite moment).
+            sums += (relative / np.maximum(share, 1e-9)).sum(axis=1)
+        return sums
 
 
 @dataclass
@@ -128,10 +129,14 @@ class Decision:
         return "chose %s (%s)" % (self.budget, "; ".join(rows))
 
 
-def decide(cands: list[Budget], moments: np.ndarray, mean: np.ndarray, costs: Costs) -> Decision:
+def squared_mean(mean: np.ndarray) -> np.ndarray:
+    """The pilot's mean image, box-filtered and squared, with a floor (relative
+    moments divide by it)."""
+    return np.maximum(np.square(_blur(mean)), 1e-4 * max(float(np.mean(mean)) ** 2, 1e-12))
+
+
+def decide(cands: list[Budget], relative: np.ndarray, costs: Costs) -> Decision:
     """The candidate of least cost x summed relative second moment."""
-    mean2 = np.maximum(np.square(_blur(mean)), 1e-4 * max(float(np.mean(mean)) ** 2, 1e-12))
-    relative = (moments / mean2.reshape(1, -1)).sum(axis=1)
     rows = []
     for b, m in zip(cands, relative):
         cost = costs.of(b)
@@ -190,6 +195,7 @@ class Pilot:
         image of both pilot passes (its luminance, (H, W))."""
         rates = np.array([[b.light_ratio, b.kappa(1, self.costs.stored_per_path)]
                           for b in self.candidates])
-        moments = samples.moments(rates, mean.size, splats)
-        self.decision = decide(self.candidates, moments, mean, self.costs)
+        mean2 = mi.Float(squared_mean(mean).ravel().astype(np.float32))
+        relative = samples.relative_moments(rates, mean2, splats)
+        self.decision = decide(self.candidates, relative, self.costs)
         return self.decision
