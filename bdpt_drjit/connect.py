@@ -163,9 +163,10 @@ def _cached_vertices(ctx, store, state, si, bsdf, connectible):
     offset = mi.UInt32(dr.floor((phase - dr.floor(phase)) * mi.Float(ctx.stored)))
     radiance, rays = mi.Spectrum(state.radiance), dr.zeros(mi.UInt32, dr.width(ctx.lane))
     picks = ctx.budget.connections
+    order = store.order
     for m in range(picks):
-        item = (ctx.lane * picks + m + offset) % ctx.stored
-        light = store.vertex(item, connectible)
+        position = (ctx.lane * picks + m + offset) % ctx.stored
+        light = store.vertex(dr.gather(mi.UInt32, order, position, connectible), connectible)
         on = connectible & ctx.strategies.enabled(light.s, t)
         c, traced, _ = connect_vertices(ctx, light, on, state, si, bsdf)
         radiance = ctx.strategies.add(ctx.images, radiance, ctx.lane, light.s, t,

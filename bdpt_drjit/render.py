@@ -416,6 +416,8 @@ class Renderer:
         # A vertex cache's contributions are divided by the density of their pick.
         ctx.connection_scale = dr.opaque(mi.Float, 1.0 / max(ctx.budget.kappa(n, stored), 1e-20))
         ctx.stored = dr.opaque(mi.UInt32, max(stored, 1))
+        if ctx.budget.caches:
+            store.order = store.ordered()
         return store, light_rays
 
     # -- results -------------------------------------------------------------------

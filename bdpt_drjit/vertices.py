@@ -113,6 +113,7 @@ class LightVertexStore:
         self.vertices = Pool(LightVertex, max(vertex_capacity, 1))
         self.splats = Pool(Splat, max(splat_capacity, 1))
         self.first = dr.full(mi.UInt32, NONE, lanes)
+        self.order = None                # vertex caches: the pool in a fixed order
         dr.make_opaque(self.vertices.items, self.splats.items, self.first)
 
     def add_vertex(self, vertex: LightVertex, lane, prev, active) -> mi.UInt32:
@@ -129,3 +130,30 @@ class LightVertexStore:
 
     def overflowed(self) -> bool:
         return self.vertices.overflowed() or self.splats.overflowed()
+
+    def _walk_lists(self, visit) -> mi.UInt32:
+        """Follow every light subpath's list, calling ``visit(item, k, path)`` for its
+        k-th stored vertex; returns the vertices per light subpath."""
+        path = dr.arange(mi.UInt32, dr.width(self.first))
+
+        def body(item, k):
+            visit(item, k, path)
+            return dr.gather(mi.UInt32, self.vertices.items.next, item), k + 1
+
+        _, count = dr.while_loop((mi.UInt32(self.first), dr.zeros(mi.UInt32, dr.width(path))),
+                                 lambda item, k: item != NONE, body, label="light lists")
+        return count
+
+    def ordered(self) -> mi.UInt32:
+        """The pool's items in a deterministic order: by light subpath, then along its
+        list.  Appends land in the pool in whatever order threads reach the counter,
+        so a vertex cache drawing "item i" from the pool itself would differ from run
+        to run; drawing position i of this order does not."""
+        count = self._walk_lists(lambda item, k, path: None)
+        start = dr.prefix_sum(count)                 # exclusive
+        order = dr.zeros(mi.UInt32, max(self.vertices.size(), 1))
+        dr.make_opaque(start, order)
+        self._walk_lists(lambda item, k, path: dr.scatter(
+            order, item, dr.gather(mi.UInt32, start, path) + k))
+        dr.eval(order)
+        return order
