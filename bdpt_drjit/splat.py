@@ -60,7 +60,12 @@ def emitter_to_camera(ctx, store, es, sample, active) -> mi.UInt32:
     cam_pdf_a = cam.importance * cos_e
     contrib *= ctx.weights.emitter_to_camera(cam_pdf_a, es.pos_pdf_a)
     rival = cam_pdf_a / es.pos_pdf_a                 # the only rival, (0,2), is path tracing
-    store.splats.append(Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=mi.UInt32(1),
-                              lane=ctx.lane, u_pt=mi.Float(rival / (1.0 + rival)),
-                              u_lt=mi.Float(1.0 / (1.0 + rival))), active)
-    return dr.select(traced, 1, 0)
+    record = Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=mi.UInt32(1),
+                   lane=ctx.lane, u_pt=mi.Float(rival / (1.0 + rival)),
+                   u_lt=mi.Float(1.0 / (1.0 + rival)))
+    rays = dr.select(traced, 1, 0)
+    # Outside a loop an append's mask is evaluated at once: evaluate everything in one
+    # kernel first, or the emission sample is computed twice (two large kernels).
+    dr.eval(record, active, rays, es)
+    store.splats.append(record, active)
+    return rays
