@@ -35,9 +35,11 @@ from .strategies import StrategyImages, StrategySet
 from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore
 from .walk import trace_camera_subpaths, trace_light_subpaths
 
-# Bytes per lane besides the pools: camera rays, radiance, the lane's list head and
-# the samplers' state (the walks' state lives in registers of the loop kernels).
-_LANE_BYTES = 160
+# Bytes per lane besides the pools: camera rays, the samplers' state, the lane's list
+# head, and each walk's final state (a loop's outputs are arrays; inside it the state
+# lives in registers).  Measured: 2172 MiB peak for 2.1M lanes of the Cornell box at
+# max_depth 8, 1035 bytes per lane with the pools' 772.
+_LANE_BYTES = 300
 # Stored light vertices and splats per lane a pass plans for (measured: 3.0 and 3.2
 # on the Cornell box, at max_depth 8 and -1 alike; 2.6 and 3.4 with its glass and
 # mirror spheres).  A pass that needs more runs its light walk again with larger pools.
