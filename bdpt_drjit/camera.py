@@ -1,19 +1,31 @@
 """The camera: primary rays, and the camera model the strategies need.
 
 Primary rays: one per lane (pixel x sample), as Mitsuba's own
-``ADIntegrator.sample_rays`` makes them, for a range of pixels of the (crop) film.
+``ADIntegrator.sample_rays`` makes them, for a range of pixels of the (crop) film,
+each with its camera vertex z_0 and the density of its direction.
 
-The model (``Camera``): where a point projects on the film, the sensor's importance
-toward it, and the density of a primary ray's direction -- what the t = 1
-strategies and the MIS chains' camera end need.  It is Mitsuba's
-``perspective.sample_direction`` (v3.9.1) computed from the sensor's own
-parameters held in opaque variables: Mitsuba's version bakes the film size into
-the kernel, which would recompile the light walk for every film size.
-tests/test_camera.py checks it against ``sensor.sample_direction``.
+The model: where a point projects on the film, the sensor's importance toward it,
+and the density of a primary ray's direction -- what the t = 1 strategies and the
+MIS chains' camera end need.  It is Mitsuba's ``sample_direction`` (v3.9.1)
+computed from the sensor's own parameters held in opaque variables: Mitsuba's
+version bakes the film size into the kernel, which would recompile the light walk
+for every film size.  tests/test_camera.py and tests/test_cameras.py check it
+against ``sensor.sample_direction`` and ``sensor.sample_ray``.
 
-Only the pinhole ``perspective`` sensor is supported: its position is a delta, so
-camera subpaths always start at z_0 = the pinhole and light paths cannot hit the
-lens (no t = 0 strategy).
+=============  =====================  ================================  ===========
+sensor         z_0 (position pdf)     direction of a primary ray        t = 1 / t = 0
+=============  =====================  ================================  ===========
+perspective    the pinhole (delta)    1 / (A cos^3), solid angle        yes / no
+thinlens       uniform on the lens    1 / (A cos^3) from its lens       yes / left
+               disk, 1 / (pi r^2)     point (see ``Camera``)            out of MIS
+orthographic   uniform on the film    delta (the view direction)        no / no
+               rectangle (near plane)
+=============  =====================  ================================  ===========
+
+A is the area of the visible film rectangle (crop window included) at unit distance
+from the lens, cos the angle of the direction with the optical axis.  The lens
+position pdf of a thin lens cancels from every MIS weight, and the t = 0 strategy
+(a light subpath hitting the lens) is not evaluated: see ``Camera``.
 """
 from __future__ import annotations
 
@@ -25,6 +37,9 @@ import numpy as np
 
 from .emitters import UnsupportedPluginError, plugin_name
 
+# Mitsuba class names of the supported sensors.
+PINHOLE, THIN_LENS, ORTHOGRAPHIC = "PerspectiveCamera", "ThinLensCamera", "OrthographicCamera"
+
 
 @dataclass
 class CameraRays:
@@ -32,58 +47,40 @@ class CameraRays:
     weight: mi.Spectrum       # sensor sampling weight (spectral response), 1 in RGB
     pos: mi.Vector2f          # film position to put the sample at
     pixel: mi.UInt32          # its crop-window pixel, row-major
-    origin: mi.Point3f        # z_0, the pinhole
+    origin: mi.Point3f        # z_0: the pinhole, the lens point, or the point on the
+                              # orthographic film plane (Mitsuba's rays start at the
+                              # near clip plane, z_0 lies behind it)
     pdf_w: mi.Float           # solid-angle density of the ray's direction over the film
+                              # (0 for an orthographic camera: a delta direction)
 
 
 @dataclass
 class CameraConnection:
     """A point connected to the camera (t = 1)."""
     uv: mi.Point2f            # film position in pixels of the crop window
-    p: mi.Point3f             # the point on the lens (the pinhole)
+    p: mi.Point3f             # the point on the lens (the pinhole, or the lens sample)
     d: mi.Vector3f            # unit direction from the point toward the lens
     dist: mi.Float
-    importance: mi.Float      # We * cos / d^2: the camera's solid-angle density of the
-                              # direction (1 / (A cos^3)) divided by d^2
+    importance: mi.Float      # We * cos / d^2 over the lens position pdf: the camera's
+                              # solid-angle density of the direction from the lens
+                              # point (1 / (A cos^3)) divided by d^2
     valid: mi.Bool            # inside the film and the clip range
 
 
-class Camera:
-    """The pinhole of a ``perspective`` sensor, from its parameters (opaque)."""
+class CameraModel:
+    """What every camera shares: primary rays over the film and the film's pixels."""
+
+    light_image_possible = True      # can a light vertex be connected to z_0 (t = 1)?
 
     def __init__(self, sensor: mi.Sensor):
         self.sensor = sensor
         params = mi.traverse(sensor)
-        film = sensor.film()
-        size, crop = mi.ScalarVector2f(film.size()), mi.ScalarVector2f(film.crop_size())
         self.to_world = mi.AffineTransform4f(params["to_world"])
         self.to_local = self.to_world.inverse()
-        self.camera_to_sample = mi.ProjectiveTransform4f(sensor.projection_transform())
-        sample_to_camera = self.camera_to_sample.inverse()
-        # The visible image rectangle at unit distance (crop included), as the
-        # sensor's importance() uses it, and the normalization 1 / its area.
-        corners = [sample_to_camera @ mi.Point3f(x, x, 0.0) for x in (0.0, 1.0)]
-        ends = [mi.Point2f(c.x, c.y) / c.z for c in corners]
-        self.rect_min, self.rect_max = dr.minimum(*ends), dr.maximum(*ends)
-        extent = self.rect_max - self.rect_min
-        self.normalization = dr.rcp(extent.x * extent.y)
-        pp = mi.Point2f(params["principal_point_offset_x"], params["principal_point_offset_y"])
-        self.pp_offset = pp * mi.Vector2f(size / crop)
-        self.resolution = mi.Vector2f(crop)
+        self.resolution = mi.Vector2f(mi.ScalarVector2f(sensor.film().crop_size()))
         self.near = mi.Float(params["near_clip"])
         self.far = mi.Float(params["far_clip"])
-        dr.make_opaque(self.to_world, self.to_local, self.camera_to_sample, self.rect_min,
-                       self.rect_max, self.normalization, self.pp_offset, self.resolution,
-                       self.near, self.far)
-
-    def _importance(self, d_local: mi.Vector3f) -> mi.Float:
-        """1 / (A cos^3) toward local direction d (0 outside the image rectangle)."""
-        ct = d_local.z
-        inv_ct = dr.rcp(ct)
-        p = mi.Point2f(d_local.x * inv_ct, d_local.y * inv_ct)
-        valid = ((ct > 0) & (p.x >= self.rect_min.x) & (p.y >= self.rect_min.y)
-                 & (p.x <= self.rect_max.x) & (p.y <= self.rect_max.y))
-        return dr.select(valid, self.normalization * inv_ct * inv_ct * inv_ct, 0.0)
+        dr.make_opaque(self.to_world, self.to_local, self.resolution, self.near, self.far)
 
     def pixel_index(self, uv: mi.Point2f) -> mi.UInt32:
         """The crop-window pixel (row-major) of a film position in pixels."""
@@ -91,25 +88,13 @@ class Camera:
         y = dr.clip(mi.Int32(dr.floor(uv.y)), 0, mi.Int32(self.resolution.y) - 1)
         return mi.UInt32(y * mi.Int32(self.resolution.x) + x)
 
+    def origin(self, ray: mi.Ray3f, aperture: mi.Point2f) -> mi.Point3f:
+        """z_0 of a primary ray made from the aperture sample ``aperture``."""
+        raise NotImplementedError
+
     def direction_pdf_w(self, d_world: mi.Vector3f) -> mi.Float:
         """Solid-angle density of a primary ray's direction (tech. rep. eq. 31)."""
-        return self._importance(self.to_local @ d_world)
-
-    def connect(self, p_world: mi.Point3f, active=True) -> CameraConnection:
-        """Connect a point to the camera (Mitsuba's ``sample_direction``)."""
-        local = self.to_local @ p_world
-        active = active & (local.z >= self.near) & (local.z <= self.far)
-        screen = self.camera_to_sample @ local
-        uv = mi.Point2f(screen.x, screen.y) - self.pp_offset
-        active &= (uv.x >= 0) & (uv.x <= 1) & (uv.y >= 0) & (uv.y <= 1)
-        dist = dr.norm(local)
-        inv_dist = dr.rcp(dist)
-        lens = self.to_world.translation()
-        importance = self._importance(local * inv_dist) * dr.square(inv_dist)
-        return CameraConnection(uv=mi.Point2f(uv * self.resolution), p=lens, d=(lens - p_world) * inv_dist,
-                                dist=dist, importance=dr.select(active, importance, 0.0),
-                                valid=active & (importance > 0))
-
+        raise NotImplementedError
 
     def sample_rays(self, sampler: mi.Sampler, pixel_offset: int, n_pixels: int,
                     spp: int, stride: int = 1) -> CameraRays:
@@ -137,15 +122,153 @@ class Camera:
         pixel = self.pixel_index(pos_f - crop_offset)
         pos = mi.Vector2f(pos) if film.rfilter().is_box_filter() else pos_f
         return CameraRays(ray=ray, weight=weight, pos=pos, pixel=pixel,
-                          origin=self.to_world.translation(),
-                          pdf_w=self.direction_pdf_w(ray.d))
+                          origin=self.origin(ray, aperture), pdf_w=self.direction_pdf_w(ray.d))
+
+
+class Camera(CameraModel):
+    """A ``perspective`` (pinhole) or ``thinlens`` sensor, from its parameters (opaque).
+
+    Thin lens.  A primary ray joins a lens point a, uniform on the disk of radius r
+    (area pdf 1 / (pi r^2)), to a point f on the focal plane z = F (F the focus
+    distance), uniform over the film rectangle scaled to that plane (area A F^2).
+    Given a, the direction w = (f - a) / |f - a| has the solid-angle density
+        p(w) = 1 / (A F^2) * |f - a|^2 / cos = 1 / (A F^2) * (F / cos)^2 / cos
+             = 1 / (A cos^3),
+    cos = w_z (Veach eq. 8.10 from area on the focal plane to solid angle at a):
+    the pinhole's density, with the angle measured at the lens point
+    (tests/test_cameras.py checks it against the Jacobian of Mitsuba's sample_ray).
+    A point p seen from lens point a lands on the film where the ray a -> p meets
+    the focal plane, projected through the lens centre (Mitsuba's sample_direction).
+
+    MIS.  Every strategy this renderer evaluates samples z_0 with the same density:
+    the camera subpaths (t >= 2) by sample_ray's aperture sample, the light image
+    (t = 1) by the lens sample of ``connect``, both 1 / (pi r^2).  The factor is
+    common to the denominator and numerator of every weight (Veach eq. 9.13 sums
+    p_j over the strategies of one path), so it cancels: the chains start as for a
+    pinhole, with the direction density from the lane's own lens point, and the t = 1
+    weight uses the camera's density of the light vertex from the lens point that
+    ``connect`` chose (importance * cos, as for the pinhole).  The t = 0 strategy (a
+    light subpath hitting the lens) is left out, as pbrt-v4 does: it would carry the
+    lens pdf only in its own density, and the chains treat z_0 as unhittable (d_vc =
+    0 at the camera start), so the weights of the strategies that remain sum to one.
+    """
+
+    def __init__(self, sensor: mi.Sensor):
+        super().__init__(sensor)
+        params = mi.traverse(sensor)
+        film = sensor.film()
+        size, crop = mi.ScalarVector2f(film.size()), mi.ScalarVector2f(film.crop_size())
+        self.lens = sensor.class_name() == THIN_LENS
+        self.camera_to_sample = mi.ProjectiveTransform4f(sensor.projection_transform())
+        sample_to_camera = self.camera_to_sample.inverse()
+        # The visible image rectangle at unit distance (crop included): its area A is
+        # the importance's normalization.  A principal point offset shifts the
+        # rectangle (sample_ray adds it to the film sample), leaving its area.
+        corners = [sample_to_camera @ mi.Point3f(x, x, 0.0) for x in (0.0, 1.0)]
+        extent = dr.abs(mi.Point2f(corners[1].x, corners[1].y) / corners[1].z
+                        - mi.Point2f(corners[0].x, corners[0].y) / corners[0].z)
+        self.normalization = dr.rcp(extent.x * extent.y)
+        pp = mi.Point2f(0.0)
+        if not self.lens:     # Mitsuba's thinlens has no principal point offset
+            pp = mi.Point2f(params["principal_point_offset_x"], params["principal_point_offset_y"])
+        self.pp_offset = pp * mi.Vector2f(size / crop)
+        self.aperture_radius = mi.Float(params["aperture_radius"] if self.lens else 0.0)
+        self.focus_distance = mi.Float(params["focus_distance"] if self.lens else 1.0)
+        dr.make_opaque(self.camera_to_sample, self.normalization, self.pp_offset,
+                       self.aperture_radius, self.focus_distance)
+
+    def lens_point(self, sample: mi.Point2f) -> mi.Point3f:
+        """The lens point (local) of an aperture sample, as Mitsuba's thinlens maps it."""
+        if not self.lens:
+            return mi.Point3f(0.0)
+        a = mi.warp.square_to_uniform_disk_concentric(sample) * self.aperture_radius
+        return mi.Point3f(a.x, a.y, 0.0)
+
+    def origin(self, ray, aperture) -> mi.Point3f:
+        if not self.lens:
+            return self.to_world.translation()
+        return self.to_world @ self.lens_point(aperture)
+
+    def direction_pdf_w(self, d_world: mi.Vector3f) -> mi.Float:
+        """Solid-angle density of a primary ray's direction, 1 / (A cos^3) (the class
+        docstring), for directions of primary rays (inside the film by construction)."""
+        ct = (self.to_local @ d_world).z
+        return dr.select(ct > 0, self.normalization * dr.rcp(ct * ct * ct), 0.0)
+
+    def connect(self, p_world: mi.Point3f, sample: mi.Point2f, active=True) -> CameraConnection:
+        """Connect a point to the camera through the lens point of ``sample`` (Mitsuba's
+        ``sample_direction``)."""
+        p_world = mi.Point3f(p_world)     # (a Vector3f would be transformed as one)
+        local = self.to_local @ p_world
+        active = active & (local.z >= self.near) & (local.z <= self.far)
+        a = self.lens_point(sample)
+        v = local - a
+        dist = dr.norm(v)
+        inv_dist = dr.rcp(dist)
+        ct = v.z * inv_dist
+        # The film position: where the ray a -> p crosses the focal plane, projected
+        # through the lens centre; a pinhole projects p itself.
+        seen = a + v * (self.focus_distance * dr.rcp(v.z)) if self.lens else local
+        screen = self.camera_to_sample @ seen
+        uv = mi.Point2f(screen.x, screen.y) - self.pp_offset
+        active &= (ct > 0) & (uv.x >= 0) & (uv.x <= 1) & (uv.y >= 0) & (uv.y <= 1)
+        importance = self.normalization * dr.rcp(ct * ct * ct) * dr.square(inv_dist)
+        lens = self.to_world @ a
+        return CameraConnection(uv=mi.Point2f(uv * self.resolution), p=lens,
+                                d=(lens - p_world) * inv_dist, dist=dist,
+                                importance=dr.select(active, importance, 0.0),
+                                valid=active & (importance > 0))
+
+
+class OrthographicCamera(CameraModel):
+    """An ``orthographic`` sensor: parallel rays, each from its own point z_0 on the film
+    plane (uniform over the film rectangle), all in one direction.  The direction is a
+    delta, so no light vertex can be connected to z_0 (no t = 1 strategy) and no
+    light subpath can hit it (no t = 0): the chains start with d_vcm = d_vc = 0 and
+    MIS renormalizes over s = 0, s = 1 and connections.  Mitsuba's rays start on the
+    near clip plane, which is where z_0 lies."""
+
+    light_image_possible = False
+
+    def origin(self, ray, aperture) -> mi.Point3f:
+        return mi.Point3f(ray.o)
+
+    def direction_pdf_w(self, d_world: mi.Vector3f) -> mi.Float:
+        return dr.zeros(mi.Float, dr.width(d_world))     # a delta: no density
+
+    def connect(self, p_world, sample, active=True):
+        raise RuntimeError("bdpt: an orthographic camera cannot be connected to (t = 1): "
+                           "its direction is a delta")
+
+
+def make_camera(sensor: mi.Sensor) -> CameraModel:
+    """The camera model of a supported sensor (``check_sensor`` first)."""
+    check_sensor(sensor)
+    return OrthographicCamera(sensor) if sensor.class_name() == ORTHOGRAPHIC else Camera(sensor)
 
 
 def check_sensor(sensor: mi.Sensor) -> None:
-    if sensor.class_name() != "PerspectiveCamera":
+    if sensor.class_name() not in (PINHOLE, THIN_LENS, ORTHOGRAPHIC):
         raise UnsupportedPluginError(
-            "bdpt: sensor plugin '%s' is not supported; only 'perspective' (a pinhole "
-            "camera, whose pdfs bdpt models exactly) is" % plugin_name(sensor))
+            "bdpt: sensor plugin '%s' is not supported; only 'perspective', 'thinlens' "
+            "and 'orthographic' (cameras whose pdfs bdpt models exactly) are"
+            % plugin_name(sensor))
+
+
+def check_settings(camera: CameraModel, settings) -> None:
+    """Refuse strategies the camera cannot have: an orthographic camera has no light
+    image (t = 1), so light tracing alone would leave the film black."""
+    if camera.light_image_possible:
+        return
+    name = plugin_name(camera.sensor)
+    if settings.strategy_subset == "lt":
+        raise ValueError("bdpt: strategy_subset 'lt' (light tracing) cannot render through "
+                         "the '%s' sensor: its direction is a delta, so no light path "
+                         "reaches its film" % name)
+    if settings.technique is not None and settings.technique[1] == 1:
+        raise ValueError("bdpt: technique %d,1 (light tracing) cannot render through the "
+                         "'%s' sensor: its direction is a delta, so no light path reaches "
+                         "its film" % (settings.technique[0], name))
 
 
 def select_sensor(scene: mi.Scene, sensor) -> mi.Sensor:

@@ -13,9 +13,11 @@ would have sampled the vertices *behind* the current one from the other side.
 A connection then needs only the pdfs at its two endpoints.
 
 Conventions (Veach's): s light vertices y_0..y_{s-1}, t camera vertices
-z_0..z_{t-1}; z_0 is the pinhole, y_0 a point on an emitter.  Pdf names carry their
-measure: ``*_pdf_w`` solid angle, ``*_pdf_a`` area.  All "cos" are geometric-normal
-cosines (they convert solid angle to area, Veach eq. 8.10).
+z_0..z_{t-1}; z_0 is on the camera (the pinhole, a lens point, or a point of an
+orthographic film plane: camera.py), y_0 a point on an emitter.  Pdf names carry
+their measure: ``*_pdf_w`` solid angle, ``*_pdf_a`` area.  "Pinhole" below stands
+for z_0 whatever the camera.  All "cos" are geometric-normal cosines (they convert
+solid angle to area, Veach eq. 8.10).
 
 Strategies may be sampled at different rates (Veach's n_i in eq. 9.10; the budgets
 of efficiency-aware MIS, Grittmann et al. 2022): the light image with N_L light
@@ -93,14 +95,22 @@ def _weight(denominator):
 
 def camera_start(h: Heuristic, cam_pdf_w, light_paths_per_camera_sample: float,
                  light_image: bool):
-    """(d_vcm, d_vc) at the pinhole z_0 (tech. rep. eq. 31).
+    """(d_vcm, d_vc) at the camera vertex z_0 (tech. rep. eq. 31).
 
     ``cam_pdf_w`` is the solid-angle density of the camera ray over the film (crop)
-    area, 1 / (A cos^3).  The light tracer (t = 1) contributes to a pixel with
-    N_L light paths against the camera's N_C samples, so its effective camera pdf
-    is cam_pdf_w * N_C / N_L (tech. rep. eq. 46's division by the light path count).
-    Without the light image the t = 1 strategies are gone: d_vcm = 0 removes exactly
-    their terms from every chain.
+    area, 1 / (A cos^3), with cos measured at z_0 (the pinhole, or the ray's own
+    lens point for a thin lens).  The light tracer (t = 1) contributes to a pixel
+    with N_L light paths against the camera's N_C samples, so its effective camera
+    pdf is cam_pdf_w * N_C / N_L (tech. rep. eq. 46's division by the light path
+    count).  Without the light image (light_image = false, or an orthographic camera,
+    whose delta direction no light vertex can be connected along) the t = 1
+    strategies are gone: d_vcm = 0 removes exactly their terms from every chain.
+
+    d_vc = 0: no light subpath can hit z_0 (t = 0).  A pinhole and an orthographic
+    camera cannot be hit; a thin lens could be, and its t = 0 strategy is left out
+    of the render and, consistently, of every chain (camera.Camera).  A thin lens's
+    position density 1 / (pi r^2) is common to all strategies evaluated, so it
+    appears nowhere.
     """
     if not light_image:
         return mi.Float(0.0), mi.Float(0.0)

@@ -51,7 +51,7 @@ _SPLATS_PER_LANE = 5
 class PassContext:
     """What the stages of one pass share; the walks only read it."""
     scene: mi.Scene
-    camera: camera_stage.Camera
+    camera: camera_stage.CameraModel
     settings: Settings
     strategies: StrategySet
     weights: Weights
@@ -214,9 +214,10 @@ class Renderer:
                  strategy_images: bool = False, **settings):
         check_variant()
         self.sensor = camera_stage.select_sensor(scene, sensor)
-        self.camera = camera_stage.Camera(self.sensor)
+        self.camera = camera_stage.make_camera(self.sensor)
         self.scene = scene
         self.settings = Settings.from_dict(settings)
+        camera_stage.check_settings(self.camera, self.settings)
         self.emitters = Emitters(scene)
         if self.emitters.count == 0:
             warnings.warn("bdpt: the scene has no emitters; the image is black", stacklevel=2)
@@ -230,7 +231,8 @@ class Renderer:
                              % self.settings.light_paths)
         self._rules_cache = {}
         # Strategy-image layers cover every strategy of full BDPT.
-        self.strategies = StrategySet(self.settings, self.emitters.count > 0)
+        self.strategies = StrategySet(self.settings, self.emitters.count > 0,
+                                      light_image_possible=self.camera.light_image_possible)
         self.seed = int(seed)
         self.strategy_images = strategy_images
         film = self.sensor.film()
@@ -264,6 +266,12 @@ class Renderer:
         every pixel has the same samples after them and the pilot costs half a BDPT
         round; then the rest of the samples."""
         self.pilot = Pilot(mi.is_spectral)
+        if not self.camera.light_image_possible:
+            # Without a light image, light subpaths serve connections alone: a budget
+            # with light subpaths and no connections would be path tracing that pays
+            # for light walks.
+            self.pilot.candidates = [b for b in self.pilot.candidates
+                                     if b.light_ratio == 0 or b.connects]
         spp = self._accepted_count(self.settings.samples_per_pass
                                    or Pilot.spp(self.pixels, self.spp))
         even, odd = (self.pixels + 1) // 2, self.pixels // 2
@@ -323,7 +331,8 @@ class Renderer:
     def _rules(self, budget: Budget, heuristic: str):
         """The strategies and weights of a budget (one pair per budget, reused)."""
         if (budget, heuristic) not in self._rules_cache:
-            strategies = StrategySet(self.settings, self.emitters.count > 0, budget)
+            strategies = StrategySet(self.settings, self.emitters.count > 0, budget,
+                                     self.camera.light_image_possible)
             self._rules_cache[budget, heuristic] = (strategies, Weights(heuristic, strategies))
         return self._rules_cache[budget, heuristic]
 

@@ -1,11 +1,14 @@
 """The light image: strategies with t = 1, connecting a light vertex to the camera.
 
 A light vertex y_{s-1} (or the emitter point y_0 for (1,1)) is connected to the
-camera through ``camera.Camera.connect``, which gives the film position it
-projects to and the sensor's importance.  Visible, nonzero contributions are
-appended to the pass's splat pool (vertices.Splat) and put on the film's light
-block after the walks (film.py), normalized like Mitsuba's ``ptracer``: by the
-film's pixel count over the number of light subpaths.
+camera through ``camera.Camera.connect``, at a lens point drawn from the depth's
+lens sample (the pinhole itself for a perspective sensor), which gives the film
+position it projects to and the sensor's importance.  Visible, nonzero
+contributions are appended to the pass's splat pool (vertices.Splat) and put on the
+film's light block after the walks (film.py), normalized like Mitsuba's ``ptracer``:
+by the film's pixel count over the number of light subpaths.  Without a light image
+(an orthographic camera, whose direction is a delta, or light_image = false) these
+functions trace nothing.
 
 Each function returns the rays it traced per lane (statistics).
 """
@@ -21,7 +24,9 @@ from .vertices import Splat
 
 def light_vertex_to_camera(ctx, store, si, bsdf, vertex, sample, active) -> mi.UInt32:
     """t = 1, s = i + 1: light vertex y_i seen by the camera."""
-    cam = ctx.camera.connect(si.p, active)
+    if not ctx.strategies.light_image:      # no t = 1 strategy (an orthographic camera)
+        return mi.UInt32(0)
+    cam = ctx.camera.connect(si.p, sample, active)
     _, cos_out, ok = geometric_cosines(si, cam.d)
     active = cam.valid & ok
     f, rev_w = eval_adjoint(bsdf, si, si.to_local(cam.d), active)
@@ -42,14 +47,17 @@ def light_vertex_to_camera(ctx, store, si, bsdf, vertex, sample, active) -> mi.U
 def emitter_to_camera(ctx, store, es, sample, active) -> mi.UInt32:
     """(1,1): the emitter point y_0 of the light subpath seen by the camera.
 
-    Delta-position emitters are skipped: a pinhole sees a point light with
-    probability zero (Mitsuba's path tracer and ptracer do not show them either).
+    Delta-position emitters are skipped, as Mitsuba's path tracer and ptracer skip
+    them (a camera ray never hits a point light; through a thin lens (1,1) could
+    connect one, and ptracer leaves that out too).
     So are environments: y_0 at infinity is seen by camera rays that escape (s = 0).
     """
+    if not ctx.strategies.light_image:
+        return mi.UInt32(0)
     active = active & ~es.delta_pos & ~es.infinite
     it = dr.zeros(mi.Interaction3f)
     it.p, it.n, it.time, it.wavelengths = es.p, es.n, ctx.time, ctx.wavelengths
-    cam = ctx.camera.connect(es.p, active)
+    cam = ctx.camera.connect(es.p, sample, active)
     active = cam.valid
     le = ctx.emitters.emitted(es.emitter, es.p, es.n, es.uv, cam.d, mi.Bool(False),
                               ctx.wavelengths, ctx.time, active)

@@ -163,6 +163,7 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
     state (``radiance``, ``hit``, ``rays`` per lane)."""
     max_j = ctx.strategies.max_camera_vertices()
     d_vcm, d_vc = ctx.weights.camera_start(rays.pdf_w)
+    # z_0: the pinhole, the lane's lens point, or its point on an orthographic film plane
     z0 = _point(rays.origin, mi.Normal3f(0.0), ctx.time, ctx.wavelengths)
     state = PathState.start(rays.ray, rays.weight, d_vcm, d_vc, z0, max_j is None or max_j >= 1)
 

@@ -6,14 +6,32 @@ multiple importance sampling.  s counts light-subpath vertices, t camera-subpath
 vertices; a path of k = s + t - 1 edges can be made by up to k + 1 strategies:
 s = 0 (a camera subpath hits an emitter), s = 1 (next-event estimation), t = 1
 (light tracing, splatted onto the film: the "light image") and s, t >= 2 (a shadow
-ray connects the two subpaths).  Light paths hitting the lens (t = 0) cannot occur
-with the pinhole camera.
+ray connects the two subpaths).
+
+Cameras:
+
+* ``perspective``: a pinhole (principal point offsets included).  Light paths cannot
+  hit it, so there is no t = 0 strategy.
+* ``thinlens`` (depth of field): every strategy above, with exact MIS.  Camera
+  subpaths start at the lens point of their aperture sample, and the light image
+  connects each light vertex to a lens point drawn uniformly on the aperture; the
+  lens's position density 1 / (pi r^2) is common to all these strategies and cancels
+  from the weights.  A light subpath could hit the lens (t = 0); that strategy is
+  left out, as in pbrt-v4, and the MIS weights treat the lens as unhittable, so the
+  other strategies still sum to one (no light reaches the image through it alone).
+* ``orthographic``: its direction is a delta, so no light vertex can be connected to
+  it: there is no light image (t = 1) and MIS renormalizes over the other strategies,
+  as with ``light_image`` false; light subpaths serve connections only, and the
+  ``auto`` budget never spends light subpaths without connections.  Each camera ray
+  starts at its own point on the film plane.  ``strategy_subset`` ``lt`` and the
+  techniques (s,1) are refused.
 
 {params}
 
-Supported: the ``perspective`` sensor; ``area``, ``point``, ``spot``, ``constant``,
-``envmap`` and ``directional`` emitters; every Mitsuba BSDF.  Other sensors and
-emitters (``orthographic``, ``projector``, ...) raise an error naming the plugin.
+Supported: the ``perspective``, ``thinlens`` and ``orthographic`` sensors; ``area``,
+``point``, ``spot``, ``constant``, ``envmap`` and ``directional`` emitters; every
+Mitsuba BSDF.  Other sensors and emitters (``radiancemeter``, ``projector``, ...)
+raise an error naming the plugin.
 
 Example::
 

@@ -31,17 +31,21 @@ def cornell():
     return load("cornell-box.xml", res=16)
 
 
-@pytest.fixture(scope="module")
-def path_by_length(cornell):
-    """Mitsuba's path tracer restricted to paths of exactly k edges:
+def path_images_by_length(scene, k_max=4, spp=256):
+    """Mitsuba's path tracer restricted to paths of exactly k edges, k = 1..k_max:
     path(max_depth=k) - path(max_depth=k-1), from independent seeds."""
     out = {}
-    prev = [np.zeros((16, 16, 3))] * SEEDS
-    for k in range(1, 5):
-        cur = mitsuba_images(cornell, "path", 256, max_depth=k)
+    prev = [0.0] * SEEDS
+    for k in range(1, k_max + 1):
+        cur = mitsuba_images(scene, "path", spp, max_depth=k)
         out[k] = [c - p for c, p in zip(cur, prev)]
-        prev = [mitsuba_render(cornell, "path", 256, seed=300 + s, max_depth=k) for s in range(SEEDS)]
+        prev = [mitsuba_render(scene, "path", spp, seed=300 + s, max_depth=k) for s in range(SEEDS)]
     return out
+
+
+@pytest.fixture(scope="module")
+def path_by_length(cornell):
+    return path_images_by_length(cornell)
 
 
 @pytest.mark.slow

@@ -1,7 +1,15 @@
 """The camera model (camera.Camera) is Mitsuba's perspective sensor: where a point
 projects, the importance toward it and the density of a primary ray's direction agree
 with ``sensor.sample_direction`` and ``sensor.sample_ray``, crop windows and principal
-point offsets included."""
+point offsets included.
+
+One difference, with a principal point offset: Mitsuba's ``importance()`` tests the
+direction against the film rectangle *without* the offset, while ``sample_ray`` and
+``sample_direction``'s film position shift it; so Mitsuba returns importance 0 for
+points in a strip its own camera rays see (its ptracer leaves that strip dark).  The
+model uses the shifted rectangle, the one primary rays cover (checked against the
+Jacobian of ``sample_ray`` in tests/test_cameras.py).  Thin lens and orthographic
+cameras: tests/test_cameras.py."""
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -37,9 +45,12 @@ def test_connect_matches_sample_direction(case):
     it = dr.zeros(mi.Interaction3f, 20000)
     it.p = p
     ds, imp = s.sample_direction(it, mi.Point2f(0.5))
-    conn = cam.connect(p)
-    valid = np.array(ds.pdf > 0) & (np.array(mi.unpolarized_spectrum(imp)[0]) > 0)
-    assert np.array_equal(np.array(conn.valid), valid)
+    conn = cam.connect(p, mi.Point2f(0.5))
+    on_film = np.array(ds.pdf > 0)          # Mitsuba's clip range and film position tests
+    assert np.array_equal(np.array(conn.valid), on_film)
+    valid = on_film & (np.array(mi.unpolarized_spectrum(imp)[0]) > 0)
+    # Mitsuba's unshifted importance rectangle (module docstring) cuts only with an offset.
+    assert (valid != on_film).any() == (case == "principal point")
     assert valid.sum() > 2000
     np.testing.assert_allclose(np.array(conn.uv)[:, valid], np.array(ds.uv)[:, valid], rtol=1e-5, atol=1e-4)
     np.testing.assert_allclose(np.array(conn.importance)[valid],
@@ -61,4 +72,8 @@ def test_direction_density_of_primary_rays(case):
     it.p = ray.o + ray.d * 2.0
     ds, imp = s.sample_direction(it, mi.Point2f(0.5))
     expected = np.array(mi.unpolarized_spectrum(imp)[0] * dr.square(ds.dist))
-    np.testing.assert_allclose(np.array(cam.direction_pdf_w(ray.d)), expected, rtol=1e-4)
+    ours = np.array(cam.direction_pdf_w(ray.d))
+    assert (ours > 0).all()
+    seen = expected > 0                     # all but Mitsuba's strip (module docstring)
+    assert seen.mean() > 0.75
+    np.testing.assert_allclose(ours[seen], expected[seen], rtol=1e-4)

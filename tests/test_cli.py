@@ -29,8 +29,9 @@ SCENES = {
     "directionalarea.xml": '<scene version="3.0.0"><shape type="rectangle">'
                            '<emitter type="directionalarea"/></shape>%s'
                            '<shape type="sphere"/></scene>' % (_SENSOR % "perspective"),
-    "ortho.xml": '<scene version="3.0.0">%s<shape type="sphere"><emitter type="area"/>'
-                 '</shape></scene>' % (_SENSOR % "orthographic"),
+    "meter.xml": '<scene version="3.0.0"><sensor type="radiancemeter"><film type="hdrfilm">'
+                 '<integer name="width" value="1"/><integer name="height" value="1"/></film>'
+                 '</sensor><shape type="sphere"><emitter type="area"/></shape></scene>',
     "nosensor.xml": '<scene version="3.0.0"><shape type="sphere"><emitter type="area"/>'
                     '</shape></scene>',
     "malformed.xml": '<scene version="3.0.0"><shape type="sphere"></scene>',
@@ -397,7 +398,7 @@ BAD = [
     ("unknown plugin", ["render", "{scenes}/unknown-plugin.xml"], ["spherez"]),
     ("directionalarea emitter", ["render", "{scenes}/directionalarea.xml"],
      ["unsupported", "directionalarea"]),
-    ("orthographic sensor", ["render", "{scenes}/ortho.xml"], ["unsupported", "orthographic"]),
+    ("radiancemeter sensor", ["render", "{scenes}/meter.xml"], ["unsupported", "radiancemeter"]),
     ("no sensor", ["render", "{scenes}/nosensor.xml"], ["no sensor"]),
     ("spp 0", ["render", CORNELL, *TINY, "--spp", "0"], ["--spp", "positive"]),
     ("spp negative", ["render", CORNELL, *TINY, "--spp", "-4"], ["--spp"]),
@@ -413,7 +414,7 @@ BAD = [
     ("output not exr", ["render", CORNELL, *TINY, "-o", "{tmp}/out.png"], [".exr"]),
     ("output dir missing", ["render", CORNELL, *TINY, "-o", "{tmp}/nowhere/out.exr"],
      ["cannot write", "does not exist"]),
-    ("output parent is a file", ["render", CORNELL, *TINY, "-o", "{tmp}/scenes/ortho.xml/out.exr"],
+    ("output parent is a file", ["render", CORNELL, *TINY, "-o", "{tmp}/scenes/meter.xml/out.exr"],
      ["cannot write"]),
     ("info missing scene", ["info", "no-such-scene.xml"], ["not found"]),
     ("info missing image", ["info", "no-such-image.exr"], ["no-such-image.exr", "not found"]),

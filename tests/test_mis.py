@@ -2,7 +2,8 @@
 gives every strategy able to sample the path sum to one, and equal the weights
 computed by brute force from products of per-vertex area pdfs (Veach eq. 10.9).
 
-A path x_0 .. x_k has x_0 on an emitter and x_k at the pinhole.  Every per-vertex
+A path x_0 .. x_k has x_0 on an emitter and x_k = z_0 on the camera (a pinhole, or
+a point on a thin lens: ``test_thin_lens_weights_match_brute_force``).  Every per-vertex
 quantity (directional pdfs both ways, cosines, distances) is drawn at random, and
 vertices are made delta (specular) or the emitter a point light at random, so the
 test exercises every branch of the chains, including delta vertices.
@@ -39,6 +40,7 @@ def random_path(rng, k, delta_prob=0.3, point_light_prob=0.3):
     P["e_pos"] = np.where(P["point_light"], 1.0, P["e_pos"])     # pmf=1, delta position
     P["nee_a"] = np.where(P["point_light"], 1.0, P["nee_a"])
     P["cos_fwd"][:, 0] = np.where(P["point_light"], 1.0, P["cos_fwd"][:, 0])
+    P["lens_a"] = rng.uniform(0.5, 50.0, N)                # thin lens: 1 / (pi r^2)
     return P
 
 
@@ -59,9 +61,12 @@ def strategy_valid(P, k, s, light_image):
     return ok
 
 
-def brute_force_pdf(P, k, s):
-    """Product of the area pdfs of strategy s (x_k's pinhole delta is common)."""
-    p = np.ones(N)
+def brute_force_pdf(P, k, s, lens=False):
+    """Product of the area pdfs of strategy s (x_k's pinhole delta is common).  With
+    ``lens``, x_k is a thin-lens point: every strategy with t >= 1 samples it with the
+    lens's area density (the camera subpath by its aperture sample, the light image
+    by its lens sample)."""
+    p = np.array(P["lens_a"]) if lens else np.ones(N)
     for i in range(s):                          # light side x_0 .. x_{s-1}
         if i == 0:
             p *= P["nee_a"] if (s == 1 and k > 1) else P["e_pos"]
@@ -165,13 +170,30 @@ BUDGETS = [(1.0, 1.0), (0.25, 1.0), (2.0, 0.0), (0.5, 0.3), (1.0, 2.5)]   # (N_L
 def test_weights_sum_to_one_and_match_brute_force(heuristic, light_image, k, r, kappa):
     """Every budget: light subpaths per camera sample r, connection rate kappa (0:
     connections off, so that s <= 1 and t = 1 are MIS'ed alone)."""
-    rng = np.random.default_rng(1000 * k + 7)
+    check_against_brute_force(np.random.default_rng(1000 * k + 7), heuristic, light_image,
+                              k, r, kappa)
+
+
+@pytest.mark.parametrize("heuristic", ["power", "balance"])
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 5])
+@pytest.mark.parametrize("r, kappa", [(1.0, 1.0), (0.5, 0.3)])
+def test_thin_lens_weights_match_brute_force(heuristic, k, r, kappa):
+    """A thin lens: x_k = z_0 is a lens point of area density 1 / (pi r^2), which every
+    strategy the renderer evaluates (t >= 1) samples; the t = 0 strategy (a light
+    subpath hitting the lens) is left out of the render and of the brute-force sum
+    alike.  The chains, which carry no lens density, give the brute-force weights:
+    the lens density cancels (camera.Camera)."""
+    check_against_brute_force(np.random.default_rng(500 * k + 3), heuristic, True, k, r,
+                              kappa, lens=True)
+
+
+def check_against_brute_force(rng, heuristic, light_image, k, r, kappa, lens=False):
     P = random_path(rng, k)
     h = mis.Heuristic(heuristic)
     w = chain_weights(P, k, h, light_image, r, kappa)
     valid = {s: strategy_valid(P, k, s, light_image) & (rate(k, s, r, kappa) > 0)
              for s in range(k + 1)}
-    pdfs = {s: brute_force_pdf(P, k, s) * rate(k, s, r, kappa) for s in range(k + 1)}
+    pdfs = {s: brute_force_pdf(P, k, s, lens) * rate(k, s, r, kappa) for s in range(k + 1)}
     hp = {s: np.where(valid[s], (pdfs[s] ** 2 if heuristic == "power" else
                                  pdfs[s] if heuristic == "balance" else 1.0), 0.0)
           for s in range(k + 1)}

@@ -191,8 +191,12 @@ def test_unsupported_emitters_raise_naming_the_plugin():
 
 
 def test_unsupported_sensor_raises():
-    scene = _scene({"type": "point", "position": [0, 0, 1]}, sensor="orthographic")
-    with pytest.raises(bdpt_drjit.UnsupportedPluginError, match="orthographic|Orthographic"):
+    scene = mi.load_dict({"type": "scene", "floor": {"type": "rectangle"},
+                          "light": {"type": "point", "position": [0, 0, 1]},
+                          "sensor": {"type": "radiancemeter", "origin": [0, 0, 3],
+                                     "direction": [0, 0, -1],
+                                     "film": {"type": "hdrfilm", "width": 1, "height": 1}}})
+    with pytest.raises(bdpt_drjit.UnsupportedPluginError, match="'radiancemeter'"):
         bdpt_drjit.render(scene, spp=1)
 
 
