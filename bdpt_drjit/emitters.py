@@ -91,7 +91,9 @@ class Emitters:
         self.count = len(emitters)
         kinds, inv_area, cos_cutoff = [], [], []
         self.kinds_present = set()
-        for e in emitters:
+        # (index, shape) of textured area lights: sampled directly (sample_position).
+        self.textured_area_shapes = []
+        for index, e in enumerate(emitters):
             cls = e.class_name()
             if cls not in _KINDS:
                 raise UnsupportedPluginError(
@@ -102,6 +104,8 @@ class Emitters:
             kinds.append(kind)
             if kind == AREA:
                 area = e.get_shape().surface_area()[0]
+                if mi.has_flag(e.flags(), mi.EmitterFlags.SpatiallyVarying):
+                    self.textured_area_shapes.append((index, e.get_shape()))
             elif kind in (ENV, DIRECTIONAL):
                 area = math.pi * self.env_radius ** 2     # the disk y_0 starts on
             else:
@@ -209,6 +213,27 @@ class Emitters:
         return emitter.eval_direction(it, ds, active)
 
     # -- sampling ---------------------------------------------------------------
+    def sample_position(self, idx, emitter, time, u_pos, active=True) -> mi.PositionSample3f:
+        """y_0 on the chosen emitter: uniform on an area light's shape (density 1/A,
+        which the s = 0 and s = 1 weights assume for any point on the light), the
+        emitter's own point for delta-position lights.
+
+        One virtual call over the *emitters*: AreaLight::sample_position calls its own
+        shape directly.  ``emitter.get_shape().sample_position`` traced the call for
+        every shape Dr.Jit has registered (every scene alive in the process), and
+        curves and instances have no position sampling: any scene with an area light
+        and a curve or an instance failed with "Shape::sample_position(): not
+        implemented!".  A textured area light would sample its texture instead, so
+        its shape is called directly (masked) to keep 1/A; there are few of them."""
+        textured = mi.Bool(False)
+        for i, _ in self.textured_area_shapes:
+            textured |= idx == i
+        ps, _ = emitter.sample_position(time, u_pos, active & ~textured)
+        for i, shape in self.textured_area_shapes:
+            on = active & (idx == i)
+            ps = dr.select(on, shape.sample_position(time, u_pos, on), ps)
+        return ps
+
     def sample_emission(self, time, wavelengths, u_sel, u_pos, u_dir, active=True) -> EmissionSample:
         """Start light subpaths: pick an emitter, a point y_0 and a direction."""
         scene = self.scene
@@ -219,12 +244,9 @@ class Emitters:
         cos_cut = dr.gather(mi.Float, self.cos_cutoff, idx, active)
         is_area = kind == AREA
 
-        # Area lights: the shape's uniform position sampling, whose density 1/A is
-        # also what the s = 0 and s = 1 weights assume for any point on the light.
-        shape_ps = emitter.get_shape().sample_position(time, u_pos, active & is_area)
-        delta_ps, _ = emitter.sample_position(time, u_pos, active & ~is_area)
-        ps = dr.select(is_area, shape_ps, delta_ps)
-        pos_pdf = pmf * dr.select(is_area, shape_ps.pdf, 1.0)
+        ps = self.sample_position(idx, emitter, time, u_pos, active)
+        # pmf x (1/A on an area light, 1 at a delta position, 1/(pi R^2) on the disk)
+        pos_pdf = pmf * dr.gather(mi.Float, self.inv_area, idx, active)
 
         frame = mi.Frame3f(dr.select(kind == POINT, mi.Vector3f(0, 0, 1), ps.n))
         local = dr.select(is_area, mi.warp.square_to_cosine_hemisphere(u_dir),
