@@ -1,5 +1,5 @@
 """Mitsuba plugins beyond the basic set (scenes/plugins): curves and instances beside
-an area light.  Each image is compared with
+an area light, projectors, sunsky.  Each image is compared with
 Mitsuba's own integrators by statistics (stats.assert_statistically_equal, Welch's
 t-test on block means over independent seeds)."""
 import gc
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import bdpt_drjit
-from bdpt_drjit.emitters import Emitters
+from bdpt_drjit.emitters import Emitters, ProjectorModel
 from conftest import ROOT, mitsuba_render
 from stats import assert_statistically_equal
 
@@ -90,3 +90,36 @@ def test_light_subpaths_start_with_density_one_over_area(shape, textured):
     # Uniform: the points' mean is the centroid, the middle of these symmetric shapes.
     center = np.array(scene.shapes()[0].bbox().center())
     assert np.abs(np.mean(ps.p.numpy(), axis=-1) - center).max() < 0.02
+
+
+# -- projector -------------------------------------------------------------------------------
+def test_projector_model_is_mitsubas_sample_ray():
+    """ProjectorModel's density and intensity give, sample by sample, the weight
+    Mitsuba's sample_ray returns (I(d) / pdf(d)), and its directions."""
+    scene = load("projector-wall.xml")
+    emitter = scene.emitters()[0]
+    model = ProjectorModel(emitter)
+    rng = np.random.default_rng(3)
+    u = mi.Point2f(*rng.random((2, 20000)).astype(np.float32))
+    ray, weight = emitter.sample_ray(0.0, 0.5, mi.Point2f(0.5), u)
+    d, uv = model.sample(u)
+    np.testing.assert_allclose(d.numpy(), ray.d.numpy(), atol=2e-6)
+    intensity = Emitters(scene).emitted(mi.EmitterPtr(emitter), ray.o, model.to_world @ mi.Vector3f(0, 0, 1),
+                                        uv, ray.d, True, dr.zeros(mi.Interaction3f).wavelengths, 0.0)
+    ok = weight.x.numpy() > 0
+    assert ok.mean() > 0.5
+    ratio = (intensity.x / model.pdf_w(ray.d)).numpy()[ok] / weight.x.numpy()[ok]
+    np.testing.assert_allclose(ratio, 1.0, rtol=1e-4)
+
+
+@pytest.mark.parametrize("reference", ["path", "ptracer"])
+def test_projector_agrees_with_path_and_ptracer(reference):
+    """A textured projector (a ramp with a black cross and a bright cell) on a wall:
+    direct and indirect light, max_depth 4."""
+    agree(load("projector-wall.xml"), reference, 4, what="projector vs " + reference)
+
+
+# -- sunsky -----------------------------------------------------------------------------------
+def test_sunsky_agrees_with_path():
+    """Sun and sky: an environment emitter with its own direction sampling."""
+    agree(load("sunsky-ball.xml"), "path", 3, what="sunsky")
