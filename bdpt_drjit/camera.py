@@ -23,7 +23,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .emitters import UnsupportedPluginError, plugin_name
+from .support import UnsupportedPluginError, plugin_name, sensor_refusal
 
 
 @dataclass
@@ -132,10 +132,10 @@ class Camera:
 
 
 def check_sensor(sensor: mi.Sensor) -> None:
-    if sensor.class_name() != "PerspectiveCamera":
-        raise UnsupportedPluginError(
-            "bdpt: sensor plugin '%s' is not supported; only 'perspective' (a pinhole "
-            "camera, whose pdfs bdpt models exactly) is" % plugin_name(sensor))
+    refusal = sensor_refusal(sensor)
+    if refusal:
+        raise UnsupportedPluginError("bdpt: sensor plugin '%s' is not supported: %s"
+                                     % (plugin_name(sensor), refusal))
 
 
 def select_sensor(scene: mi.Scene, sensor) -> mi.Sensor:

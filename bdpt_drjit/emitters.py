@@ -25,8 +25,8 @@ directional lights): y_0 on the disk only places the ray, its "distance" to y_1
 enters no pdf, and the camera strategies that would see it (s = 0 on a ray that
 escapes) use solid-angle densities.  A directional light cannot be hit at all.
 Emitter selection uses Mitsuba's own pmf (``scene.sample_emitter``), so light paths
-and next-event estimation agree on it.  Other emitters (directionalarea,
-timed_sunsky) are refused with an error naming the plugin.
+and next-event estimation agree on it.  Which emitters are refused, and why, is
+decided in support.py.
 """
 from __future__ import annotations
 
@@ -36,32 +36,13 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from .support import UnsupportedPluginError, plugin_name  # noqa: F401 (re-exported)
+
 AREA, POINT, SPOT, ENV, DIRECTIONAL, PROJECTOR = 0, 1, 2, 3, 4, 5
 _KINDS = {"AreaLight": AREA, "PointLight": POINT, "SpotLight": SPOT,
           "ConstantBackgroundEmitter": ENV, "EnvironmentMapEmitter": ENV,
           "DirectionalEmitter": DIRECTIONAL, "Projector": PROJECTOR,
           "SunskyEmitter": ENV}
-
-
-_XML_NAMES = {"AreaLight": "area", "PointLight": "point", "SpotLight": "spot",
-              "ConstantBackgroundEmitter": "constant", "EnvironmentMapEmitter": "envmap",
-              "DirectionalEmitter": "directional", "Projector": "projector",
-              "DirectionalArea": "directionalarea", "SunskyEmitter": "sunsky",
-              "TimedSunskyEmitter": "timed_sunsky",
-              "PerspectiveCamera": "perspective", "OrthographicCamera": "orthographic",
-              "ThinLensCamera": "thinlens", "RadianceMeter": "radiancemeter",
-              "IrradianceMeter": "irradiancemeter", "BatchSensor": "batch",
-              "DistantSensor": "distant"}
-
-
-class UnsupportedPluginError(ValueError):
-    """A scene uses a Mitsuba plugin that bdpt cannot render correctly (yet)."""
-
-
-def plugin_name(obj) -> str:
-    """The XML plugin name of a Mitsuba object, as well as we can tell."""
-    cls = obj.class_name()
-    return _XML_NAMES.get(cls, cls)
 
 
 def is_delta_position(kind):
@@ -163,11 +144,9 @@ class Emitters:
         self.textured_area_shapes, self.projectors = [], []
         for index, e in enumerate(emitters):
             kind = _KINDS.get(e.class_name())
-            if kind is None:
-                raise UnsupportedPluginError(
-                    "bdpt: emitter plugin '%s' is not supported yet (it cannot start "
-                    "light subpaths here); supported emitters: area, point, spot, "
-                    "projector, constant, envmap, sunsky, directional" % plugin_name(e))
+            if kind is None:       # support.check refuses these first, with the reason
+                raise UnsupportedPluginError("bdpt: emitter plugin '%s' is not supported"
+                                             % plugin_name(e))
             kinds.append(kind)
             area = 1.0
             if kind == AREA:

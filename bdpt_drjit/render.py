@@ -17,7 +17,6 @@ pixels at 1 sample for very large films.  Peak memory does not grow with spp.
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass, field
 
 import drjit as dr
@@ -25,6 +24,7 @@ import mitsuba as mi
 import numpy as np
 
 from . import camera as camera_stage
+from . import support
 from .emitters import Emitters
 from .film import FilmAccumulator
 from .mis import Weights
@@ -153,9 +153,9 @@ class Renderer:
         self.camera = camera_stage.Camera(self.sensor)
         self.scene = scene
         self.settings = Settings.from_dict(settings)
+        # Refuses what bdpt would get wrong (media, unsupported plugins), warns of the rest.
+        support.check(scene, self.sensor)
         self.emitters = Emitters(scene)
-        if self.emitters.count == 0:
-            warnings.warn("bdpt: the scene has no emitters; the image is black", stacklevel=2)
         self.strategies = StrategySet(self.settings, self.emitters.count > 0)
         self.weights = Weights(self.settings.mis, self.strategies)
         self.seed = int(seed)
