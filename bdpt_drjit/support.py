@@ -4,8 +4,9 @@
 ``UnsupportedPluginError`` naming the plugin, and warns of the rest.  ``bdpt info``
 lists every verdict of the same ``inspect``, so that info and render cannot disagree.
 
-A verdict is *supported*, *refused* with a reason the user can act on (sensors other
-than a pinhole, emitters it has no densities for), or *supported with a warning* (the image is
+A verdict is *supported*, *refused* with a reason the user can act on (content that
+bdpt would otherwise ignore or get wrong: media, sensors other than a pinhole,
+emitters it has no densities for), or *supported with a warning* (the image is
 right but differs from what a user may expect of Mitsuba's ``path``).  README's
 "What is supported" says the same for every plugin Mitsuba 3.9.1 ships.
 """
@@ -53,6 +54,9 @@ _XML_NAMES = {
     "HomogeneousMedium": "homogeneous", "HeterogeneousMedium": "heterogeneous",
 }
 
+_MEDIA = ("bdpt has no participating media yet: it would render the scene as if the "
+          "medium were not there (a fog cube in the Cornell box came out 25% off "
+          "Mitsuba's volpath); render it with volpath, or remove the medium")
 _SENSORS = {
     "orthographic": "its rays start on a plane, not at a pinhole; bdpt models only the "
                     "pinhole 'perspective' camera (use it, or Mitsuba's path)",
@@ -149,6 +153,9 @@ def _sensor_verdicts(sensor) -> list:
     name = describe(sensor)
     refusal = sensor_refusal(sensor)
     out = [_refused("sensor", sensor, name, refusal) if refusal else Verdict("sensor", name, SUPPORTED)]
+    medium = sensor.get_medium()
+    if medium is not None:
+        out.append(_refused("medium", medium, "%s, the sensor's medium" % describe(medium), _MEDIA))
     film = sensor.film()
     out.append(Verdict("film", "%s with %s filter, %s sampler" % (
         describe(film), film.rfilter().class_name(), sensor.sampler().class_name()), SUPPORTED))
@@ -164,6 +171,9 @@ def _emitter_verdicts(scene) -> list:
     out = []
     for e in emitters:
         out.append(_emitter_verdict(e))
+        if e.get_medium() is not None:
+            out.append(_refused("medium", e.get_medium(), "%s, the medium of emitter %s"
+                                % (describe(e.get_medium()), describe(e)), _MEDIA))
     return out
 
 
@@ -218,9 +228,21 @@ def _projector_refusal(e) -> str | None:
 def _shape_verdicts(shape) -> list:
     name = describe(shape)
     out = []
+    for medium, side in ((shape.interior_medium(), "interior"), (shape.exterior_medium(), "exterior")):
+        if medium is not None:
+            out.append(_refused("medium", medium, "%s, the %s of %s" % (describe(medium), side, name),
+                                _MEDIA))
     bsdf = shape.bsdf()
     if bsdf is not None and shape.class_name() not in ("Instance", "ShapeGroupPlugin"):
         name += " with " + describe(bsdf)
+        if mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null):
+            out.append(Verdict("shape", name, WARNING, NULL_LOBE))
     if not out:
         out.append(Verdict("shape", name, SUPPORTED))
     return out
+
+
+NULL_LOBE = ("its BSDF lets light pass through (a null lobe: null, mask, thindielectric, "
+             "hair, polarizers): the image is right, but each pass counts as a bounce "
+             "toward max_depth, as in Mitsuba's path (volpath does not count it), and "
+             "no connection crosses it (more noise)")

@@ -1,6 +1,6 @@
 """Mitsuba plugins beyond the basic set (scenes/plugins): curves and instances beside
-an area light, projectors, sunsky, and the refusal of emitters on shapes that cannot
-be sampled.  Each image is compared with
+an area light, projectors, sunsky, pass-through (null-lobe) BSDFs, and the
+refusal of emitters on shapes that cannot be sampled.  Each image is compared with
 Mitsuba's own integrators by statistics (stats.assert_statistically_equal, Welch's
 t-test on block means over independent seeds)."""
 import gc
@@ -148,3 +148,15 @@ def test_timed_sunsky_is_refused():
     permitted, from inside its traced emitter call)."""
     with pytest.raises(bdpt_drjit.UnsupportedPluginError, match="'timed_sunsky'"):
         bdpt_drjit.render(load("sunsky-ball.xml", sky="timed_sunsky"), spp=1)
+
+
+# -- pass-through BSDFs ------------------------------------------------------------------------
+@pytest.mark.parametrize("pane", ["null", "thindielectric"])
+def test_pass_through_panes_agree_with_volpath(pane):
+    """A null or thin-dielectric pane between the light and the floor: bdpt makes a
+    vertex where a path crosses it, and every strategy that would connect there gets
+    weight 0 (the null lobe has no density), so the image is right.  Unbounded depth:
+    bdpt (like path) counts each crossing as a bounce, volpath does not."""
+    with pytest.warns(UserWarning, match="pass through"):
+        agree(load("null-pane.xml", pane=pane), "volpath", -1, ref_spp=512, spp=128,
+              what=pane)

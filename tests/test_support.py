@@ -1,7 +1,12 @@
 """What bdpt supports (bdpt_drjit/support.py): ``bdpt info`` and ``bdpt render`` run the
-same checks, so info's verdict and the render agree on every scene we have."""
+same checks, so info's verdict and the render agree on every scene we have; content
+bdpt would ignore (participating media) is refused naming it; pass-through BSDFs
+render with a warning."""
 import contextlib
 import io
+import os
+import subprocess
+import sys
 
 import mitsuba as mi
 import numpy as np
@@ -10,7 +15,7 @@ import pytest
 import bdpt_drjit
 from bdpt_drjit import support
 from bdpt_drjit.cli import main
-from conftest import EXTERNAL, SCENES
+from conftest import EXTERNAL, ROOT, SCENES
 
 PLUGINS = SCENES / "plugins"
 
@@ -52,6 +57,54 @@ def test_info_and_render_agree(path, tmp_path):
         assert rcode != 0, "info refused (%s) but render succeeded" % status
         error = [line for line in rerr.splitlines() if line.startswith("bdpt: error:")][-1]
         assert error.split("bdpt: error: ")[1] in status
+
+
+# -- media (issue "Mitsuba citizen", item 3) ------------------------------------------
+def _box_with(medium_at: str) -> mi.Scene:
+    fog = {"type": "homogeneous", "id": "fog", "sigma_t": 2.0}
+    T = mi.ScalarTransform4f
+    sensor = {"type": "perspective", "to_world": T().look_at(origin=[0, 1, 3], target=[0, 0, 0], up=[0, 1, 0]),
+              "film": {"type": "hdrfilm", "width": 8, "height": 8}}
+    box = {"type": "cube", "bsdf": {"type": "null"}}
+    light = {"type": "point", "position": [0, 2, 0]}
+    if medium_at == "sensor":
+        sensor["medium"] = fog
+    elif medium_at == "emitter":
+        light["medium"] = fog
+    else:
+        box[medium_at] = fog
+    return mi.load_dict({"type": "scene", "sensor": sensor, "box": box, "light": light,
+                         "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(3)}})
+
+
+@pytest.mark.parametrize("where", ["interior", "exterior", "sensor", "emitter"])
+def test_media_are_refused_naming_the_medium(where):
+    """bdpt has no participating media: it rendered such scenes as if the medium
+    were absent (a fog cube in the Cornell box 25% off volpath), with exit 0."""
+    with pytest.raises(bdpt_drjit.UnsupportedPluginError, match="'homogeneous'.*'fog'"):
+        bdpt_drjit.render(_box_with(where), spp=1)
+
+
+def test_cli_refuses_a_fog_cube(tmp_path):
+    """``bdpt render`` of a fog cube exited 0 and ``bdpt info`` called it supported."""
+    scene = PLUGINS / "fog-cube.xml"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    p = subprocess.run([sys.executable, "-m", "bdpt_drjit", "render", str(scene), "--res", "8x8",
+                        "--spp", "1", "-o", str(tmp_path / "fog.exr")],
+                       capture_output=True, text=True, timeout=300, env=env)
+    assert p.returncode != 0 and not (tmp_path / "fog.exr").exists()
+    errors = [line for line in p.stderr.splitlines() if line.startswith("bdpt: error:")]
+    assert len(errors) == 1 and "'homogeneous'" in errors[0] and "'fog'" in errors[0], p.stderr
+    info = subprocess.run([sys.executable, "-m", "bdpt_drjit", "info", str(scene)],
+                          capture_output=True, text=True, timeout=300, env=env)
+    assert "REFUSED" in info.stdout and "homogeneous 'fog'" in info.stdout, info.stdout
+
+
+# -- warnings -------------------------------------------------------------------------
+def test_null_lobes_warn_and_are_listed_by_info():
+    code, out, _ = _cli("info", PLUGINS / "null-pane.xml")
+    assert code == 0 and "status:     supported" in out and "1 warning above" in out
+    assert "rectangle 'pane' with null" in out and "counts as a bounce" in out
 
 
 def test_every_verdict_names_its_element():
