@@ -63,6 +63,9 @@ _SENSORS = {
     "thinlens": "a lens with an aperture is not modelled (camera subpaths start at a "
                 "pinhole); use 'perspective', or Mitsuba's path for depth of field",
 }
+_FILM = ("bdpt's film stage puts samples and light-image splats as hdrfilm lays them out "
+         "(Mitsuba's ImageBlock.put rejects a specfilm block: 'non-standard image block "
+         "configuration'); use hdrfilm")
 _EMITTERS = {
     "directionalarea": "it emits only along its shape's normal (a delta direction on a "
                        "surface): camera paths can never reach it and bdpt has no "
@@ -157,8 +160,12 @@ def _sensor_verdicts(sensor) -> list:
     if medium is not None:
         out.append(_refused("medium", medium, "%s, the sensor's medium" % describe(medium), _MEDIA))
     film = sensor.film()
-    out.append(Verdict("film", "%s with %s filter, %s sampler" % (
-        describe(film), film.rfilter().class_name(), sensor.sampler().class_name()), SUPPORTED))
+    name = "%s with %s filter, %s sampler" % (
+        describe(film), film.rfilter().class_name(), sensor.sampler().class_name())
+    if film.class_name() != "HDRFilm":
+        out.append(_refused("film", film, name, _FILM))
+    else:
+        out.append(Verdict("film", name, SUPPORTED))
     return out
 
 

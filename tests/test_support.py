@@ -115,3 +115,21 @@ def test_every_verdict_names_its_element():
     assert {"rectangle 'wall' with diffuse", "cube 'box' with diffuse"} <= names
     assert all(v.status == support.SUPPORTED for v in verdicts)
     assert np.isfinite(bdpt_drjit.render(scene, spp=1, max_depth=2).image).all()
+
+
+def test_specfilm_is_refused_naming_the_film(tmp_path):
+    """A specfilm (spectral variants) made the render fail inside the film stage with
+    Mitsuba's 'ImageBlock::put(): non-standard image block configuration!'."""
+    scene = tmp_path / "specfilm.xml"
+    scene.write_text(
+        '<scene version="3.0.0"><sensor type="perspective"><film type="specfilm">'
+        '<integer name="width" value="8"/><integer name="height" value="8"/>'
+        '<spectrum name="band1" value="400:1, 700:1"/></film></sensor>'
+        '<shape type="rectangle"/><emitter type="point"><point name="position" x="0" '
+        'y="0" z="2"/></emitter></scene>')
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    p = subprocess.run([sys.executable, "-m", "bdpt_drjit", "render", str(scene), "--variant",
+                        "llvm_ad_spectral", "--spp", "1", "-o", str(tmp_path / "s.exr")],
+                       capture_output=True, text=True, timeout=300, env=env)
+    errors = [line for line in p.stderr.splitlines() if line.startswith("bdpt: error:")]
+    assert p.returncode != 0 and len(errors) == 1 and "'specfilm'" in errors[0], p.stderr
