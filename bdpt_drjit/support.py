@@ -15,6 +15,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -244,6 +245,10 @@ def _shape_verdicts(shape) -> list:
         name += " with " + describe(bsdf)
         if mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null):
             out.append(Verdict("shape", name, WARNING, NULL_LOBE))
+    if shape.is_mesh():
+        fraction = reversed_normals(shape)
+        if fraction > 0.5:
+            out.append(Verdict("shape", name, WARNING, REVERSED_NORMALS % (100 * fraction)))
     if not out:
         out.append(Verdict("shape", name, SUPPORTED))
     return out
@@ -253,3 +258,24 @@ NULL_LOBE = ("its BSDF lets light pass through (a null lobe: null, mask, thindie
              "hair, polarizers): the image is right, but each pass counts as a bounce "
              "toward max_depth, as in Mitsuba's path (volpath does not count it), and "
              "no connection crosses it (more noise)")
+REVERSED_NORMALS = ("its vertex normals oppose its triangle winding on %.0f%% of its area: "
+                    "where shading and geometric normals disagree, bdpt gives light zero "
+                    "weight (as Mitsuba's ptracer does; its path does not), so this mesh "
+                    "renders much darker than in path; flip its winding or its normals")
+
+
+def reversed_normals(mesh) -> float:
+    """The fraction of a mesh's area whose interpolated vertex normals point against
+    the normal of the triangle's winding (0 without vertex normals)."""
+    if not mesh.has_vertex_normals() or mesh.face_count() == 0:
+        return 0.0
+    p = np.asarray(dr.unravel(mi.Point3f, mesh.vertex_positions_buffer()).numpy()).T
+    n = np.asarray(dr.unravel(mi.Normal3f, mesh.vertex_normals_buffer()).numpy()).T
+    f = np.asarray(dr.unravel(mi.Vector3u, mesh.faces_buffer()).numpy()).T
+    winding = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
+    shading = n[f[:, 0]] + n[f[:, 1]] + n[f[:, 2]]
+    area = np.linalg.norm(winding, axis=1)
+    total = area.sum()
+    if total <= 0:
+        return 0.0
+    return float(area[np.einsum("ij,ij->i", winding, shading) < 0].sum() / total)

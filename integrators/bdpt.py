@@ -11,9 +11,11 @@ with the pinhole camera.
 
 {params}
 
-Supported: the ``perspective`` sensor; ``area``, ``point``, ``spot``, ``constant``,
-``envmap`` and ``directional`` emitters; every Mitsuba BSDF.  Other sensors and
-emitters (``orthographic``, ``projector``, ...) raise an error naming the plugin.
+Supported: the ``perspective`` sensor; ``area``, ``point``, ``spot``, ``projector``,
+``constant``, ``envmap``, ``sunsky`` and ``directional`` emitters; every Mitsuba BSDF
+and shape; ``hdrfilm``.  Participating media, other sensors and emitters
+(``orthographic``, ``directionalarea``, ...) and ``specfilm`` raise an error naming
+the plugin (``bdpt_drjit/support.py``; ``bdpt info SCENE.xml`` lists every verdict).
 
 Example::
 
