@@ -44,7 +44,7 @@ with held_during_import():
         except ImportError:      # no usable LLVM: render() reports it with install advice
             pass
 
-    from .emitters import UnsupportedPluginError
+    from .support import UnsupportedPluginError
     from .exr import read_exr, write_exr
     from .render import Renderer, RenderResult, render
     from .settings import HEURISTICS, PARAMS, Settings

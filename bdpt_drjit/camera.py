@@ -35,7 +35,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .emitters import UnsupportedPluginError, plugin_name
+from .support import UnsupportedPluginError, plugin_name, sensor_refusal
 
 # Mitsuba class names of the supported sensors.
 PINHOLE, THIN_LENS, ORTHOGRAPHIC = "PerspectiveCamera", "ThinLensCamera", "OrthographicCamera"
@@ -248,11 +248,10 @@ def make_camera(sensor: mi.Sensor) -> CameraModel:
 
 
 def check_sensor(sensor: mi.Sensor) -> None:
-    if sensor.class_name() not in (PINHOLE, THIN_LENS, ORTHOGRAPHIC):
-        raise UnsupportedPluginError(
-            "bdpt: sensor plugin '%s' is not supported; only 'perspective', 'thinlens' "
-            "and 'orthographic' (cameras whose pdfs bdpt models exactly) are"
-            % plugin_name(sensor))
+    refusal = sensor_refusal(sensor)
+    if refusal:
+        raise UnsupportedPluginError("bdpt: sensor plugin '%s' is not supported: %s"
+                                     % (plugin_name(sensor), refusal))
 
 
 def check_settings(camera: CameraModel, settings) -> None:

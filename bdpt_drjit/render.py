@@ -17,7 +17,6 @@ pixels at 1 sample for very large films.  Peak memory does not grow with spp.
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass, field, replace
 
 import drjit as dr
@@ -25,6 +24,7 @@ import mitsuba as mi
 import numpy as np
 
 from . import camera as camera_stage
+from . import support
 from .emitters import Emitters
 from .film import FilmAccumulator
 from .mis import Weights
@@ -218,9 +218,9 @@ class Renderer:
         self.scene = scene
         self.settings = Settings.from_dict(settings)
         camera_stage.check_settings(self.camera, self.settings)
+        # Refuses what bdpt would get wrong (media, unsupported plugins), warns of the rest.
+        support.check(scene, self.sensor)
         self.emitters = Emitters(scene)
-        if self.emitters.count == 0:
-            warnings.warn("bdpt: the scene has no emitters; the image is black", stacklevel=2)
         fixed = fixed_budget(self.settings)
         if strategy_images and fixed is None:   # the layers show every BDPT strategy
             fixed = BDPT

@@ -29,9 +29,11 @@ Cameras:
 {params}
 
 Supported: the ``perspective``, ``thinlens`` and ``orthographic`` sensors; ``area``,
-``point``, ``spot``, ``constant``, ``envmap`` and ``directional`` emitters; every
-Mitsuba BSDF.  Other sensors and emitters (``radiancemeter``, ``projector``, ...)
-raise an error naming the plugin.
+``point``, ``spot``, ``projector``, ``constant``, ``envmap``, ``sunsky`` and
+``directional`` emitters; every Mitsuba BSDF and shape; ``hdrfilm``.  Participating
+media, other sensors and emitters (``radiancemeter``, ``directionalarea``, ...) and
+``specfilm`` raise an error naming the plugin (``bdpt_drjit/support.py``; ``bdpt info
+SCENE.xml`` lists every verdict).
 
 Example::
 

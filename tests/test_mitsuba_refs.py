@@ -2,10 +2,11 @@
 every BSDF on a grid of spheres under an area light, a point light, a constant and an
 environment-map sky, with normal and bump maps and textures (max_depth 2); mirror
 spheres reflecting each other under an environment map (max_depth 8); a textured spot
-light; a sphere under a directional light.  The references are Mitsuba's path tracer at 32000 samples per pixel, written
-by another Mitsuba version; BDPT must agree with them statistically (block means,
-t-test over seeds, ``stats.assert_matches_reference``).  The scene with a
-projector, which bdpt does not support, must raise an error naming the plugin.
+light; a sphere under a directional light; area lights (two of them textured, one
+on a sphere mesh), spots (one textured), a textured projector and a point light side
+by side (max_depth 4).  The references are Mitsuba's path tracer at 32000 samples
+per pixel, written by another Mitsuba version; BDPT must agree with them
+statistically (block means, t-test over seeds, ``stats.assert_matches_reference``).
 """
 from pathlib import Path
 
@@ -27,7 +28,8 @@ BSDF_SPHERES = ["arealight", "bumpmap", "constant", "envmap", "normalmap",
 CASES = ([("bsdf_spheres", "test_%s_path.xml" % n, "test_%s_ref_rgb" % n, 2) for n in BSDF_SPHERES]
          + [("infinite_mirrors", "scene_path.xml", "scene_ref_rgb", 8),
             ("spot_light", "test_spot_direct.xml", "test_spot_ref_rgb", 2),
-            ("floating_sphere", "test_directional_direct.xml", "test_directional_ref_rgb", 2)])
+            ("floating_sphere", "test_directional_direct.xml", "test_directional_ref_rgb", 2),
+            ("various_emitters", "test_various_emitters_ptracer.xml", "test_various_emitters_ref_rgb", 4)])
 REF_SPP = 32000
 
 
@@ -43,13 +45,6 @@ def test_agrees_with_mitsuba_reference(folder, xml, ref, max_depth):
             for s in range(8)]
     assert all(np.isfinite(im).all() for im in imgs)
     assert_matches_reference(imgs, ref_img, ref_var, REF_SPP, what=xml)
-
-
-def test_unsupported_emitters_are_refused():
-    path = external(*TESTS.parts, "various_emitters", "test_various_emitters_ptracer.xml")
-    scene = mi.load_file(str(path), integrator="path")
-    with pytest.raises(bdpt_drjit.UnsupportedPluginError, match="'projector'"):
-        bdpt_drjit.render(scene, spp=1)
 
 
 @pytest.mark.parametrize("name", BSDF_SPHERES)

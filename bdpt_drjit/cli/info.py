@@ -9,15 +9,6 @@ from .images import read_image
 from .scene import (check_sensor_index, integrator_defaults, load_scene, make_renderer,
                     scene_params, scene_path, setup_variant)
 
-_BSDF_NAMES = {
-    "SmoothDiffuse": "diffuse", "TwoSidedBRDF": "twosided", "SmoothDielectric": "dielectric",
-    "ThinDielectric": "thindielectric", "RoughDielectric": "roughdielectric",
-    "SmoothConductor": "conductor", "RoughConductor": "roughconductor",
-    "SmoothPlastic": "plastic", "RoughPlastic": "roughplastic", "Principled": "principled",
-    "PrincipledThinBSDF": "principledthin", "BlendBSDF": "blendbsdf", "MaskBSDF": "mask",
-    "NullBSDF": "null", "BumpMap": "bumpmap", "NormalMap": "normalmap",
-    "HairBSDF": "hair", "Polarizer": "polarizer", "Retarder": "retarder",
-    "MeasuredBSDF": "measured", "PPLastic": "pplastic"}
 # The header entries of 'bdpt render', in the order shown; others follow.
 _HEADER_ORDER = ("spp", "spp_requested", "seed", "passes", "render_time", "merged_from",
                  "scene", "scene_params", "sensor", "variant", "bdpt_version")
@@ -35,7 +26,7 @@ def _variant_line(mi) -> str:
 
 
 def _sensor_lines(scene, chosen: int) -> list:
-    from ..emitters import plugin_name
+    from ..support import plugin_name
     sensors = scene.sensors()
     if not sensors:
         return ["sensor:     none  [refused: the scene has no sensor]"]
@@ -56,35 +47,48 @@ def _sensor_lines(scene, chosen: int) -> list:
 
 
 def _content_lines(scene) -> list:
-    from ..emitters import plugin_name
-    emitters = scene.emitters()
-    lines = ["emitters:   none  [warning: the image will be black]"] if not emitters else []
-    lines += ["emitter:    %s" % plugin_name(e) for e in emitters]
+    from ..support import describe
     bsdfs, kinds = set(), {}
     for shape in scene.shapes():
         kinds[shape.class_name()] = kinds.get(shape.class_name(), 0) + 1
-        b = shape.bsdf()
-        if b is not None:
-            ident = b.id()
-            bsdfs.add((_BSDF_NAMES.get(b.class_name(), b.class_name()),
-                       ident if ident and not ident.startswith("_unnamed") else ""))
-    lines.append("bsdfs:      %s" % (", ".join(
-        label + (" '%s'" % ident if ident else "") for label, ident in sorted(bsdfs)) or "none"))
-    lines.append("shapes:     %d (%s)" % (sum(kinds.values()), ", ".join(
-        "%s x%d" % kv for kv in sorted(kinds.items()))))
+        if shape.bsdf() is not None:
+            bsdfs.add(describe(shape.bsdf()))
+    return ["bsdfs:      %s" % (", ".join(sorted(bsdfs)) or "none"),
+            "shapes:     %d (%s)" % (sum(kinds.values()), ", ".join(
+                "%s x%d" % kv for kv in sorted(kinds.items())))]
+
+
+def _verdict_lines(verdicts) -> list:
+    """One line per scene element and what bdpt does with it (support.inspect, the
+    checks 'bdpt render' runs); identical lines are counted, not repeated."""
+    counts = {}
+    for v in verdicts:
+        counts[v] = counts.get(v, 0) + 1
+    width = max(len(v.name) + (5 + len(str(n)) if n > 1 else 0) for v, n in counts.items())
+    lines = ["elements:   what bdpt does with each"]
+    for v, n in counts.items():
+        name = v.name + (" (x%d)" % n if n > 1 else "")
+        lines.append("  %-8s %-*s  %s%s" % (v.kind, width, name, v.status,
+                                            ": " + v.reason if v.reason else ""))
     return lines
 
 
-def _verdict(scene, sensor: int, settings: dict) -> str:
-    """The definitive answer: what constructing the renderer says."""
+def _verdict(scene, sensor: int, settings: dict, verdicts) -> str:
+    """The definitive answer: what constructing the renderer says (its refusal is
+    the first REFUSED element above; settings are checked too)."""
+    shown = {"bdpt: " + v.message() for v in verdicts}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
             make_renderer(scene, sensor, None, 0, False, settings)
         except CLIError as e:
             return "status:     REFUSED: %s" % e
-    extra = "".join("; warning: %s" % one_line(w.message) for w in caught)
-    return "status:     supported: 'bdpt render' will render it%s" % extra
+    extra = "".join("; warning: %s" % one_line(w.message) for w in caught
+                    if str(w.message) not in shown)
+    from ..support import WARNING
+    notes = sum(v.status == WARNING for v in verdicts)
+    return "status:     supported: 'bdpt render' will render it%s%s" % (
+        " (%d warning%s above)" % (notes, "" if notes == 1 else "s") if notes else "", extra)
 
 
 def scene_info(args) -> list:
@@ -95,12 +99,14 @@ def scene_info(args) -> list:
     check_sensor_index(scene, args.sensor)
     lines = ["scene:      %s%s" % (path, (" (%s)" % ", ".join(
         "%s=%s" % kv for kv in sorted(params.items()))) if params else ""), _variant_line(mi)]
-    lines += _sensor_lines(scene, args.sensor) + _content_lines(scene)
+    from ..support import inspect
+    verdicts = inspect(scene, scene.sensors()[args.sensor]) if scene.sensors() else []
+    lines += _sensor_lines(scene, args.sensor) + _verdict_lines(verdicts) + _content_lines(scene)
     settings, integrator_name = integrator_defaults(scene)
     lines.append("integrator: %s in the file (bdpt renders instead%s)" % (
         integrator_name, ", with " + ", ".join("%s=%s" % kv for kv in sorted(settings.items()))
         if settings else ""))
-    lines.append(_verdict(scene, args.sensor, settings))
+    lines.append(_verdict(scene, args.sensor, settings, verdicts))
     return lines
 
 

@@ -103,7 +103,7 @@ def integrator_defaults(scene) -> tuple[dict, str]:
 
 
 def make_renderer(scene, sensor, spp, seed, strategy_images, settings):
-    from ..emitters import UnsupportedPluginError
+    from ..support import UnsupportedPluginError
     from ..render import Renderer
     try:
         return Renderer(scene, sensor=sensor, spp=spp, seed=seed,

@@ -1,0 +1,277 @@
+"""What bdpt renders: a verdict for every element of a loaded scene.
+
+``check`` is what ``Renderer.__init__`` runs: it raises the first refusal as
+``UnsupportedPluginError`` naming the plugin, and warns of the rest.  ``bdpt info``
+lists every verdict of the same ``inspect``, so that info and render cannot disagree.
+
+A verdict is *supported*, *refused* with a reason the user can act on (content that
+bdpt would otherwise ignore or get wrong: media, sensors other than a pinhole,
+emitters it has no densities for), or *supported with a warning* (the image is
+right but differs from what a user may expect of Mitsuba's ``path``).  README's
+"What is supported" says the same for every plugin Mitsuba 3.9.1 ships.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+SUPPORTED, WARNING, REFUSED = "supported", "warning", "REFUSED"
+
+# XML plugin names of Mitsuba 3.9.1's classes (class_name() -> the name in a scene file).
+_XML_NAMES = {
+    # emitters
+    "AreaLight": "area", "PointLight": "point", "SpotLight": "spot",
+    "ConstantBackgroundEmitter": "constant", "EnvironmentMapEmitter": "envmap",
+    "DirectionalEmitter": "directional", "Projector": "projector",
+    "DirectionalArea": "directionalarea", "SunskyEmitter": "sunsky",
+    "TimedSunskyEmitter": "timed_sunsky",
+    # sensors and films
+    "PerspectiveCamera": "perspective", "OrthographicCamera": "orthographic",
+    "ThinLensCamera": "thinlens", "RadianceMeter": "radiancemeter",
+    "IrradianceMeter": "irradiancemeter", "BatchSensor": "batch",
+    "DistantSensor": "distant", "HDRFilm": "hdrfilm", "SpecFilm": "specfilm",
+    # shapes
+    "OBJMesh": "obj", "PLYMesh": "ply", "SerializedMesh": "serialized", "Cube": "cube",
+    "Rectangle": "rectangle", "Disk": "disk", "Sphere": "sphere", "Cylinder": "cylinder",
+    "BSplineCurve": "bsplinecurve", "LinearCurve": "linearcurve", "Instance": "instance",
+    "SDFGrid": "sdfgrid", "Ellipsoids": "ellipsoids", "EllipsoidsMesh": "ellipsoidsmesh",
+    "BlenderMesh": "blender", "ShapeGroupPlugin": "shapegroup", "Mesh": "mesh",
+    # BSDFs
+    "SmoothDiffuse": "diffuse", "TwoSidedBRDF": "twosided", "SmoothDielectric": "dielectric",
+    "ThinDielectric": "thindielectric", "RoughDielectric": "roughdielectric",
+    "SmoothConductor": "conductor", "RoughConductor": "roughconductor",
+    "SmoothPlastic": "plastic", "RoughPlastic": "roughplastic", "Principled": "principled",
+    "PrincipledThinBSDF": "principledthin", "BlendBSDF": "blendbsdf", "MaskBSDF": "mask",
+    "Null": "null", "NullBSDF": "null", "BumpMap": "bumpmap", "NormalMap": "normalmap",
+    "Hair": "hair", "HairBSDF": "hair", "LinearPolarizer": "polarizer",
+    "LinearRetarder": "retarder", "CircularPolarizer": "circular",
+    "MeasuredBSDF": "measured", "MeasuredPolarized": "measured_polarized",
+    "PolarizedPlastic": "pplastic",
+    # media
+    "HomogeneousMedium": "homogeneous", "HeterogeneousMedium": "heterogeneous",
+}
+
+_MEDIA = ("bdpt has no participating media yet: it would render the scene as if the "
+          "medium were not there (a fog cube in the Cornell box came out 25% off "
+          "Mitsuba's volpath); render it with volpath, or remove the medium")
+# The cameras camera.py models exactly (Mitsuba class names).
+SUPPORTED_SENSORS = ("PerspectiveCamera", "ThinLensCamera", "OrthographicCamera")
+_FILM = ("bdpt's film stage puts samples and light-image splats as hdrfilm lays them out "
+         "(Mitsuba's ImageBlock.put rejects a specfilm block: 'non-standard image block "
+         "configuration'); use hdrfilm")
+_EMITTERS = {
+    "directionalarea": "it emits only along its shape's normal (a delta direction on a "
+                       "surface): camera paths can never reach it and bdpt has no "
+                       "strategy for it; render it with Mitsuba's ptracer",
+    "timed_sunsky": "Mitsuba 3.9.1 cannot trace it in JIT variants (its own path fails on "
+                    "it: 'jit_var_schedule(): not permitted'); use 'sunsky' at a fixed time",
+}
+
+
+class UnsupportedPluginError(ValueError):
+    """A scene uses a Mitsuba plugin that bdpt cannot render correctly (yet)."""
+
+
+@dataclass(frozen=True)
+class Verdict:
+    kind: str            # sensor, film, emitter, shape, medium, scene
+    name: str            # the plugin and its id, e.g. "area 'lamp' on rectangle"
+    status: str          # SUPPORTED, WARNING or REFUSED
+    reason: str = ""
+    plugin: str = ""     # the plugin a refusal names
+
+    def message(self) -> str:
+        if self.status == REFUSED:
+            return "%s plugin '%s' is not supported (%s): %s" % (
+                self.kind, self.plugin, self.name, self.reason)
+        return "%s %s: %s" % (self.kind, self.name, self.reason)
+
+
+def _refused(kind: str, obj, name: str, reason: str) -> Verdict:
+    return Verdict(kind, name, REFUSED, reason, plugin_name(obj))
+
+
+def plugin_name(obj) -> str:
+    """The XML plugin name of a Mitsuba object, as well as we can tell."""
+    cls = obj.class_name()
+    return _XML_NAMES.get(cls, cls)
+
+
+def describe(obj) -> str:
+    """Plugin name and, if the scene file gave one, the id: "area 'lamp'"."""
+    ident = obj.id()
+    named = ident and not ident.startswith("_unnamed")
+    return plugin_name(obj) + (" '%s'" % ident if named else "")
+
+
+def inspect(scene: mi.Scene, sensor: mi.Sensor) -> list:
+    """Every verdict about ``scene`` rendered through ``sensor``."""
+    out = _sensor_verdicts(sensor) + _emitter_verdicts(scene)
+    for shape in all_shapes(scene):
+        out += _shape_verdicts(shape)
+    return out
+
+
+def check(scene: mi.Scene, sensor: mi.Sensor) -> list:
+    """Raise the first refusal; warn of every warning; return the verdicts."""
+    verdicts = inspect(scene, sensor)
+    for v in verdicts:
+        if v.status == REFUSED:
+            raise UnsupportedPluginError("bdpt: " + v.message())
+    for v in verdicts:
+        if v.status == WARNING:
+            warnings.warn("bdpt: " + v.message(), stacklevel=3)
+    return verdicts
+
+
+def sensor_refusal(sensor: mi.Sensor) -> str | None:
+    """Why bdpt cannot render through ``sensor`` (None: it can)."""
+    if sensor.class_name() in SUPPORTED_SENSORS:
+        return None
+    return ("it does not form an image bdpt can model (bdpt renders through 'perspective', "
+            "'thinlens' and 'orthographic' cameras); use Mitsuba's path")
+
+
+def all_shapes(scene: mi.Scene) -> list:
+    """The scene's shapes, and those inside shape groups (which scene.shapes() hides
+    behind their instances)."""
+    shapes = list(scene.shapes())
+    known = {id(s) for s in shapes}
+    for obj in mi.traverse(scene).hierarchy:
+        if isinstance(obj, mi.Shape) and id(obj) not in known:
+            shapes.append(obj)
+            known.add(id(obj))
+    return shapes
+
+
+# -- sensors -------------------------------------------------------------------------
+def _sensor_verdicts(sensor) -> list:
+    name = describe(sensor)
+    refusal = sensor_refusal(sensor)
+    out = [_refused("sensor", sensor, name, refusal) if refusal else Verdict("sensor", name, SUPPORTED)]
+    medium = sensor.get_medium()
+    if medium is not None:
+        out.append(_refused("medium", medium, "%s, the sensor's medium" % describe(medium), _MEDIA))
+    film = sensor.film()
+    name = "%s with %s filter, %s sampler" % (
+        describe(film), film.rfilter().class_name(), sensor.sampler().class_name())
+    if film.class_name() != "HDRFilm":
+        out.append(_refused("film", film, name, _FILM))
+    else:
+        out.append(Verdict("film", name, SUPPORTED))
+    return out
+
+
+# -- emitters ------------------------------------------------------------------------
+def _emitter_verdicts(scene) -> list:
+    emitters = scene.emitters()
+    if not emitters:
+        return [Verdict("scene", "without emitters", WARNING,
+                        "the scene has no emitters; the image is black")]
+    out = []
+    for e in emitters:
+        out.append(_emitter_verdict(e))
+        if e.get_medium() is not None:
+            out.append(_refused("medium", e.get_medium(), "%s, the medium of emitter %s"
+                                % (describe(e.get_medium()), describe(e)), _MEDIA))
+    return out
+
+
+def _emitter_verdict(e) -> Verdict:
+    from .emitters import _KINDS, AREA, PROJECTOR
+    name, kind = describe(e), _KINDS.get(e.class_name())
+    if kind is None:
+        return _refused("emitter", e, name, _EMITTERS.get(
+            plugin_name(e), "bdpt has no model of its emission densities; use Mitsuba's path"))
+    if kind == AREA:
+        name += " on " + describe(e.get_shape())
+        reason = _area_shape_refusal(e.get_shape())
+        if reason:                # the shape is what cannot be: the refusal names it
+            return _refused("shape", e.get_shape(), name, reason)
+    if kind == PROJECTOR:
+        reason = _projector_refusal(e)
+        if reason:
+            return _refused("emitter", e, name, reason)
+    return Verdict("emitter", name, SUPPORTED)
+
+
+def _area_shape_refusal(shape) -> str | None:
+    """Light subpaths start uniformly on an area light's shape, density 1/A, and the
+    MIS weights assume it: a shape without uniform position sampling cannot emit."""
+    try:
+        area = float(shape.surface_area()[0])
+        u = mi.Point2f([0.1, 0.5, 0.9], [0.7, 0.2, 0.5])
+        pdf = shape.sample_position(0.0, u).pdf.numpy()
+    except RuntimeError:
+        return ("it cannot carry an area emitter: light subpaths start on the emitter's "
+                "surface and Mitsuba cannot sample points on a %s; put the emitter on a "
+                "mesh, rectangle, disk, sphere or cylinder" % plugin_name(shape))
+    if area > 0 and not np.allclose(pdf * area, 1.0, rtol=1e-3):
+        return ("it cannot carry an area emitter: Mitsuba's position sampling on a %s is "
+                "not uniform (density %s, 1/area %g), which bdpt's weights assume; put "
+                "the emitter on a mesh"
+                % (plugin_name(shape), pdf, 1.0 / area))
+    return None
+
+
+def _projector_refusal(e) -> str | None:
+    """Mitsuba's projector emits inconsistently under a scaled to_world: sample_ray
+    leaves the scale out, sample_direction squares it.  Only rigid frames are exact."""
+    m = np.array(mi.traverse(e)["to_world"].matrix.numpy()).reshape(4, 4)[:3, :3]
+    if not np.allclose(m.T @ m, np.eye(3), atol=1e-4):
+        return ("its to_world scales or shears; Mitsuba's projector then emits different "
+                "light in path and ptracer, so it has no right image: use lookat/rotate/translate")
+    return None
+
+
+# -- shapes ----------------------------------------------------------------------------
+def _shape_verdicts(shape) -> list:
+    name = describe(shape)
+    out = []
+    for medium, side in ((shape.interior_medium(), "interior"), (shape.exterior_medium(), "exterior")):
+        if medium is not None:
+            out.append(_refused("medium", medium, "%s, the %s of %s" % (describe(medium), side, name),
+                                _MEDIA))
+    bsdf = shape.bsdf()
+    if bsdf is not None and shape.class_name() not in ("Instance", "ShapeGroupPlugin"):
+        name += " with " + describe(bsdf)
+        if mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null):
+            out.append(Verdict("shape", name, WARNING, NULL_LOBE))
+    if shape.is_mesh():
+        fraction = reversed_normals(shape)
+        if fraction > 0.5:
+            out.append(Verdict("shape", name, WARNING, REVERSED_NORMALS % (100 * fraction)))
+    if not out:
+        out.append(Verdict("shape", name, SUPPORTED))
+    return out
+
+
+NULL_LOBE = ("its BSDF lets light pass through (a null lobe: null, mask, thindielectric, "
+             "hair, polarizers): the image is right, but each pass counts as a bounce "
+             "toward max_depth, as in Mitsuba's path (volpath does not count it), and "
+             "no connection crosses it (more noise)")
+REVERSED_NORMALS = ("its vertex normals oppose its triangle winding on %.0f%% of its area: "
+                    "where shading and geometric normals disagree, bdpt gives light zero "
+                    "weight (as Mitsuba's ptracer does; its path does not), so this mesh "
+                    "renders much darker than in path; flip its winding or its normals")
+
+
+def reversed_normals(mesh) -> float:
+    """The fraction of a mesh's area whose interpolated vertex normals point against
+    the normal of the triangle's winding (0 without vertex normals)."""
+    if not mesh.has_vertex_normals() or mesh.face_count() == 0:
+        return 0.0
+    p = np.asarray(dr.unravel(mi.Point3f, mesh.vertex_positions_buffer()).numpy()).T
+    n = np.asarray(dr.unravel(mi.Normal3f, mesh.vertex_normals_buffer()).numpy()).T
+    f = np.asarray(dr.unravel(mi.Vector3u, mesh.faces_buffer()).numpy()).T
+    winding = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
+    shading = n[f[:, 0]] + n[f[:, 1]] + n[f[:, 2]]
+    area = np.linalg.norm(winding, axis=1)
+    total = area.sum()
+    if total <= 0:
+        return 0.0
+    return float(area[np.einsum("ij,ij->i", winding, shading) < 0].sum() / total)
