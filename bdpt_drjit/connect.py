@@ -38,7 +38,9 @@ def emission_hit(ctx, state, si):
     hit = state.active & (emitter != None) & ctx.strategies.enabled(0, t)  # noqa: E711
     contrib = state.beta * emitter.eval(si, hit)
     n, to_prev = si.sh_frame.n, si.to_world(si.wi)
-    pos_pdf_a, emission_pdf_aw, _, _ = ctx.emitters.emission_pdfs(emitter, n, to_prev, hit)
+    pos_pdf_a, emission_pdf_aw = mi.Float(0.0), mi.Float(0.0)
+    if ctx.weights.chains:
+        pos_pdf_a, emission_pdf_aw, _, _ = ctx.emitters.emission_pdfs(emitter, n, to_prev, hit)
     from_pinhole = state.depth == 1
     nee_pdf_a = ctx.emitters.nee_pdf_a(state.prev, si.p, n, si.uv, emitter, mi.Bool(False),
                                        si.time, hit & ~from_pinhole)
@@ -61,8 +63,13 @@ def environment_hit(ctx, state, escaped):
     ray = state.ray
     contrib = state.beta * ctx.emitters.environment_radiance(env, -ray.d, ray.wavelengths,
                                                              ray.time, active)
-    nee_pdf_w, emission_pdf_aw = ctx.emitters.environment_pdfs(
-        mi.EmitterPtr(env), state.prev, ray.d, active & (state.depth > 1))
+    rival = active & (state.depth > 1)
+    if ctx.weights.chains:
+        nee_pdf_w, emission_pdf_aw = ctx.emitters.environment_pdfs(
+            mi.EmitterPtr(env), state.prev, ray.d, rival)
+    else:
+        nee_pdf_w = ctx.emitters.environment_nee_pdf_w(mi.EmitterPtr(env), state.prev, ray.d, rival)
+        emission_pdf_aw = mi.Float(0.0)
     contrib *= ctx.weights.environment_hit(state.d_vcm, state.d_vc, state.lw, state.depth == 1,
                                            nee_pdf_w, emission_pdf_aw)
     contrib = dr.select(active, finite(contrib), 0.0)
@@ -90,8 +97,10 @@ def next_event(ctx, state, si, bsdf, sample, active):
     active = traced & ~scene.ray_test(si.spawn_ray_to(ds.p), traced)
     weights = ctx.weights
     if weights.on:
-        bsdf_rev_w = reverse_pdf(bsdf, IMPORTANCE, si, wo, active)
-        _, emission_pdf_aw, cos_light, _ = ctx.emitters.emission_pdfs(ds.emitter, ds.n, -ds.d, active)
+        bsdf_rev_w, emission_pdf_aw, cos_light = mi.Float(0.0), mi.Float(0.0), mi.Float(1.0)
+        if weights.chains:
+            bsdf_rev_w = reverse_pdf(bsdf, IMPORTANCE, si, wo, active)
+            _, emission_pdf_aw, cos_light, _ = ctx.emitters.emission_pdfs(ds.emitter, ds.n, -ds.d, active)
         directional = False
         if DIRECTIONAL in ctx.emitters.kinds_present:
             directional = ctx.emitters.kind_of(ds.emitter, active) == DIRECTIONAL

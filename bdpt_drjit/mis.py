@@ -288,6 +288,10 @@ class Weights:
         self.lafortune = self.on and self.h.is_lafortune
         self.rival_11 = bool(strategies.enabled(1, 1))
         self.light_image = strategies.light_image
+        # Are there strategies beyond s <= 1?  Without them the chains stay 0 and the
+        # densities that only feed them (reverse pdfs, emission densities) are not
+        # computed: path tracing then costs what Mitsuba's path costs.
+        self.chains = self.on and (strategies.light_image or strategies.connects)
         self.set_rates(1.0, 1.0)
 
     def set_rates(self, light_ratio: float, kappa: float) -> None:

@@ -234,7 +234,8 @@ def _scatter(ctx, state: PathState, si, bsdf, u: DepthSamples, active, importanc
         smooth = dr.select(spectrum_nonzero(weight), f_adj * dr.rcp(bs.pdf), 0.0)
         weight = dr.select(delta, weight * adjoint_correction(si, wo), smooth)
     else:
-        pdf_rev_w = reverse_pdf(bsdf, IMPORTANCE, si, bs.wo, active)
+        pdf_rev_w = (reverse_pdf(bsdf, IMPORTANCE, si, bs.wo, active) if ctx.weights.chains
+                     else mi.Float(0.0))
     # Lanes that stop keep garbage from here on; nothing reads it.
     if ctx.moments is not None:
         state.d_end = mis.end_after_scatter(state.d_end, state.d_vcm, state.d_vc, cos_out, bs.pdf,
