@@ -38,7 +38,7 @@ import signal
 import socket
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -328,7 +328,11 @@ class Cluster:
         self.startup = 0.0
 
     def __enter__(self) -> "Cluster":
-        self.connect()
+        try:
+            self.connect()
+        except BaseException:
+            self.close()
+            raise
         return self
 
     def __exit__(self, *exc) -> bool:
@@ -516,6 +520,7 @@ class ClusterRun:
         self.sums = _Sums()
         self.runs_lost = collections.Counter()
         self.overheads = []                   # per pass: round trip - the worker's time
+        self.merge_time = 0.0                 # the driver's float64 additions
         # Passes past the prefix held at most: bounds the driver's memory.
         self.window = max(8, 3 * len(cluster.slots))
 
@@ -656,8 +661,10 @@ class ClusterRun:
             slot.retry_at = time.perf_counter() + _POLL
 
     def _merge(self) -> None:
+        start = time.perf_counter()
         while self.sums.passes in self.finished and self.sums.passes < self.limit:
             self.sums.add(self.finished.pop(self.sums.passes))
+        self.merge_time += time.perf_counter() - start
 
 
 def render_on_cluster(scene, cluster, spp: int | None = None, seed: int = 0, sensor: int = 0,

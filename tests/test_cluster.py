@@ -4,6 +4,7 @@ A pass's samples depend only on (seed, index), and the driver adds the workers' 
 sums in pass order, so a cluster render is the local render of the same seed and plan,
 to float rounding: whichever worker ran a pass, however often, and wherever it stopped.
 """
+import contextlib
 import os
 import signal
 import subprocess
@@ -31,9 +32,20 @@ SCENE = [CORNELL, "-D", "resx=24", "-D", "resy=24", "--max-depth", "4", "--seed"
 SPP = 256
 
 
-def render_cmd(out, *extra):
-    return [sys.executable, "-m", "bdpt_drjit", "render", *SCENE, "-o", str(out),
-            *map(str, extra)]
+@contextlib.contextmanager
+def rendering(out, spp):
+    """A local:2 cluster render in a subprocess, once it shows progress: the process and
+    its stderr so far; killed if the test leaves it running."""
+    proc = subprocess.Popen([sys.executable, "-m", "bdpt_drjit", "render", *SCENE, "-o", str(out),
+                             "--spp", str(spp), "--cluster", "local:2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=cli_env())
+    try:
+        yield proc, _wait_for_progress(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
 
 
 def same_image(path, ref_path):
@@ -113,11 +125,7 @@ def test_killed_worker_loses_only_its_pass(folder, local_render):
     """SIGKILL one worker process while it renders a pass: the pass runs again (the
     same seed) and the image is still exactly the local render, with the full spp."""
     out = folder / "killed.exr"
-    proc = subprocess.Popen(render_cmd(out, "--spp", SPP, "--cluster", "local:2"),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=cli_env())
-    try:
-        lines = _wait_for_progress(proc)
+    with rendering(out, SPP) as (proc, lines):
         end = time.perf_counter() + 30
         busy = []
         while not busy and time.perf_counter() < end:     # a worker in the middle of a pass
@@ -126,10 +134,6 @@ def test_killed_worker_loses_only_its_pass(folder, local_render):
         assert busy, "no worker was rendering"
         os.kill(busy[0], signal.SIGKILL)
         stdout, stderr = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     stderr = "".join(lines) + stderr
     assert proc.returncode == 0, stderr
     assert "Traceback" not in stderr and "(raylet)" not in stdout + stderr
@@ -145,17 +149,9 @@ def test_interrupt_keeps_a_prefix_of_passes(folder):
     """Ctrl-C: the passes in flight finish, the image is passes 0..k-1 (the local render
     of k x 2 spp, exactly), the header has the true spp, and the exit status is 130."""
     out = folder / "stopped.exr"
-    proc = subprocess.Popen(render_cmd(out, "--spp", 100000, "--cluster", "local:2"),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=cli_env())
-    try:
-        lines = _wait_for_progress(proc)
+    with rendering(out, 100000) as (proc, lines):
         proc.send_signal(signal.SIGINT)
         _, stderr = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     stderr = "".join(lines) + stderr
     assert proc.returncode == 130, stderr
     assert "passes in flight" in stderr and "Traceback" not in stderr
@@ -166,6 +162,24 @@ def test_interrupt_keeps_a_prefix_of_passes(folder):
     ref = folder / "prefix.exr"
     ok(run_cli("render", *SCENE, "--spp", done, "-q", "-o", ref))
     same_image(out, ref)
+
+
+@needs_ray
+def test_time_budget_on_a_film_split_in_pixel_ranges(tmp_path):
+    """--time and --checkpoint on a cluster, with passes that are pixel ranges: the render
+    stops at the end of a round (every pixel has its camera samples) and equals the local
+    render of that many spp."""
+    small = [CORNELL, "--memory-budget", "1M", "-D", "resx=64", "-D", "resy=64",
+             "--max-depth", 3]
+    timed = tmp_path / "timed.exr"
+    p = ok(run_cli("render", *small, "--spp", 8, "--time", 0.001, "--checkpoint", 0.001,
+                   "--cluster", "local:2", "-o", timed))
+    assert "time budget" in p.stderr
+    _, meta = read_exr(timed)
+    assert 1 <= meta["spp"] < 8 and meta["passes"] % 4 == 0          # 4 ranges per round
+    ref = tmp_path / "ref.exr"
+    ok(run_cli("render", *small, "--spp", meta["spp"], "-q", "-o", ref))
+    same_image(timed, ref)
 
 
 @needs_ray
