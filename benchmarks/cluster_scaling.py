@@ -7,7 +7,9 @@
 
 For each mode: the start-up (Ray, the workers loading the scene), then the passes timed
 after one warm-up pass per worker (kernels compiled or loaded from Dr.Jit's cache),
-the fastest of --repeats renders (the same workers): samples/s over the wall time of
+the fastest of --repeats renders (the same workers; a plain render after each, the
+fastest of all kept, as other load on the machine comes and goes; "vs the plain render
+after it" is the median of those pairs' time ratios): samples/s over the wall time of
 all passes, the workers' time per pass, and the time
 per pass that is not rendering -- the round trip (sending the pass, the worker reading
 its film, Ray moving the raw sums, the driver getting them) less the worker's time --
@@ -39,29 +41,41 @@ SCENE = C.ROOT / "scenes" / "cornell-box.xml"
 BEGIN, END = "<!-- cluster_scaling: begin -->", "<!-- cluster_scaling: end -->"
 
 
-def plain(args, params) -> dict:
-    scene = mi.load_file(str(SCENE), **params)
-    make = lambda: Renderer(scene, spp=args.spp, seed=args.seed,  # noqa: E731
-                            samples_per_pass=args.per_pass, max_depth=args.max_depth)
-    warm = make()
-    warm.render_pass(0)
-    best = None
-    for _ in range(args.repeats):
-        r = make()
+class Plain:
+    """The plain local render, timed again between the cluster's renders: the machine's
+    other load changes over a run, and each mode keeps its fastest render."""
+
+    def __init__(self, args, params):
+        self.scene = mi.load_file(str(SCENE), **params)
+        self.args = args
+        self.make().render_pass(0)                  # warm-up: kernels compiled
+        self.best = None
+
+    def make(self):
+        a = self.args
+        return Renderer(self.scene, spp=a.spp, seed=a.seed, samples_per_pass=a.per_pass,
+                        max_depth=a.max_depth)
+
+    def render(self) -> float:
+        r = self.make()
         start = time.perf_counter()
         while not r.done:
             r.run_pass()
         image = r.result().image
         wall = time.perf_counter() - start
-        if best is None or wall < best[0]:
-            best = wall, r, image
-    wall, r, image = best
-    return {"mode": "plain", "workers": 1, "threads": dr.thread_count(), "startup": 0.0,
-            "wall": wall, "passes": len(r.plan), "worker_time": r.time, "overhead": 0.0,
-            "idle": 0.0, "merge": 0.0, "raw_bytes": 0, "image": image, "pixels": r.pixels}
+        if self.best is None or wall < self.best[0]:
+            self.best = wall, r, image
+        return wall
+
+    def row(self) -> dict:
+        wall, r, image = self.best
+        return {"mode": "plain", "workers": 1, "threads": dr.thread_count(), "startup": 0.0,
+                "wall": wall, "passes": len(r.plan), "worker_time": r.time, "overhead": 0.0,
+                "idle": 0.0, "merge": 0.0, "raw_bytes": 0, "image": image, "pixels": r.pixels,
+                "paired": 1.0}
 
 
-def on_cluster(args, params, workers: int) -> dict:
+def on_cluster(args, params, workers: int, plain: Plain) -> dict:
     scene = mi.load_file(str(SCENE), **params)
     r = Renderer(scene, spp=args.spp, seed=args.seed, samples_per_pass=args.per_pass,
                  max_depth=args.max_depth)
@@ -71,7 +85,7 @@ def on_cluster(args, params, workers: int) -> dict:
         # One warm-up pass per worker (its result is dropped, its film cleared).
         warm = cluster.ray.get([s.handle.render.remote(0) for s in cluster.slots])
         raw_bytes = sum(v.nbytes for k, v in warm[0]["raw"].items() if k != "light_paths")
-        best = None
+        best, ratios = None, []
         for repeat in range(args.repeats):
             run = run if repeat == 0 else ClusterRun(cluster, r)     # the same workers
             start = time.perf_counter()
@@ -81,6 +95,7 @@ def on_cluster(args, params, workers: int) -> dict:
             res = run.result()
             if best is None or wall < best[0]:
                 best = wall, run, res
+            ratios.append(plain.render() / wall)     # the workers idle meanwhile
         wall, run, res = best
         passes = len(r.plan)
         return {"mode": address, "workers": workers,
@@ -89,19 +104,22 @@ def on_cluster(args, params, workers: int) -> dict:
                 "worker_time": run.sums.time, "overhead": float(np.mean(run.overheads)),
                 "idle": (workers * wall - run.sums.time) / passes,
                 "merge": run.merge_time / passes, "raw_bytes": raw_bytes,
-                "image": res.image, "pixels": r.pixels, "rerun": run.passes_rerun}
+                "image": res.image, "pixels": r.pixels, "rerun": run.passes_rerun,
+                "paired": float(np.median(ratios))}
 
 
 def table(rows, spp) -> str:
     base = rows[0]["pixels"] * spp / rows[0]["wall"]
     out = ["| mode | workers x threads | start-up / s | wall / s | samples/s | vs plain | "
-           "worker time / pass / ms | round trip - worker time / pass / ms | "
-           "not rendering / pass / ms | driver merge / pass / ms | raw sums / pass |",
-           "|" + "---|" * 11]
+           "vs the plain render after it | worker time / pass / ms | round trip - worker "
+           "time / pass / ms | not rendering / pass / ms | driver merge / pass / ms | "
+           "raw sums / pass |",
+           "|" + "---|" * 12]
     for m in rows:
         rate = m["pixels"] * spp / m["wall"]
-        out.append("| %s | %d x %d | %.1f | %.2f | %.3g | %.2fx | %.0f | %.1f | %.1f | %.2f | %s |" % (
+        out.append("| %s | %d x %d | %.1f | %.2f | %.3g | %.2fx | %.2fx | %.0f | %.1f | %.1f | %.2f | %s |" % (
             m["mode"], m["workers"], m["threads"], m["startup"], m["wall"], rate, rate / base,
+            m["paired"],
             1e3 * m["worker_time"] / m["passes"], 1e3 * m["overhead"], 1e3 * m["idle"],
             1e3 * m["merge"], "%.0f KiB" % (m["raw_bytes"] / 1024) if m["raw_bytes"] else "-"))
     return "\n".join(out)
@@ -134,11 +152,14 @@ def main(argv=None) -> int:
     params = {"resx": w, "resy": h}
     machine = C.machine_info()
     started = time.perf_counter()
-    rows = [plain(args, params)]
-    C.log("plain: %.2f s" % rows[0]["wall"])
+    plain = Plain(args, params)
+    plain.render()
+    rows = []
     for n in (int(x) for x in args.workers.split(",")):
-        rows.append(on_cluster(args, params, n))
-        C.log("local:%d: %.2f s (start-up %.1f s)" % (n, rows[-1]["wall"], rows[-1]["startup"]))
+        rows.append(on_cluster(args, params, n, plain))
+        C.log("local:%d: %.2f s (start-up %.1f s); plain so far %.2f s"
+              % (n, rows[-1]["wall"], rows[-1]["startup"], plain.best[0]))
+    rows.insert(0, plain.row())
     for m in rows[1:]:
         np.testing.assert_allclose(m["image"], rows[0]["image"], rtol=1e-5, atol=1e-6)
     command = "python -m benchmarks.cluster_scaling " + " ".join(argv if argv is not None
@@ -146,7 +167,7 @@ def main(argv=None) -> int:
     block = "\n".join([
         BEGIN,
         "Reproduce: `%s` (took %.0f s). Cornell box %dx%d, max_depth %d, %d spp in %d passes of "
-        "%d spp, seed %d, fastest of %d renders per mode. Machine: %s, %d cores, load average %.2f at start; Ray %s; %s. "
+        "%d spp, seed %d, fastest of %d renders per cluster (and of all plain renders, one after each). Machine: %s, %d cores, load average %.2f at start; Ray %s; %s. "
         "The three images agree to rtol 1e-5 (the same estimator)."
         % (command.strip(), time.perf_counter() - started, w, h, args.max_depth, args.spp,
            rows[0]["passes"], args.per_pass, args.seed, args.repeats, machine["cpu"], machine["cpu_count"],
