@@ -370,6 +370,8 @@ class Cluster:
             with _for_ray_init(env):
                 ray.init(runtime_env=runtime_env, **kwargs)
         except Exception as e:
+            with contextlib.suppress(Exception):
+                ray.shutdown()                  # whatever ray.init had started
             what = ("start a local Ray cluster" if a.kind == "local" else
                     "connect to the Ray cluster at %s" % a.text)
             hint = ("" if a.kind == "local" else " (start one with 'ray start --head', or "

@@ -277,3 +277,50 @@ def test_without_ray(tmp_path):
                         "-o", tmp_path / "out.exr", env=env),
                 "needs Ray", "pip install 'bdpt-drjit[cluster]'")
     assert not (tmp_path / "out.exr").exists()
+
+
+# -- the driver's rules, without Ray processes -----------------------------------------------
+class _FakeRenderer:
+    """A plan of pixel ranges: 2 ranges of 50 pixels per round, 3 rounds (3 spp)."""
+    plan = [(0, 50, 1), (50, 50, 1)] * 3
+    pixels, spp = 100, 3
+
+
+def _run(**slots):
+    from types import SimpleNamespace
+
+    from bdpt_drjit.cluster import ClusterRun
+    return ClusterRun(SimpleNamespace(slots=[], **slots), _FakeRenderer())
+
+
+def test_wind_down_finishes_the_round_of_the_passes_sent():
+    run = _run()
+    assert run.at_round_end and not run.done and run.spp_done == 0
+    run.in_flight = {"ref": (None, 2, 0.0)}           # pass 2 opens round 2
+    assert run.wind_down() and run.limit == 4          # ... which must be finished
+    run.in_flight = {}
+    run.finished = {i: {"raw": {"light_paths": 1}, "time": 0.1, "rays": 1} for i in range(5)}
+    run._merge()                                       # pass 4 is past the limit: dropped
+    assert run.done and run.passes_done == 4 and run.spp_done == 2 and run.at_round_end
+    idle = _run()
+    assert not idle.wind_down() and idle.done and idle.passes_done == 0
+
+
+@needs_ray
+def test_workers_must_run_the_drivers_code():
+    from types import SimpleNamespace
+
+    from bdpt_drjit.cluster import Cluster, ClusterError, _Slot, _versions, code_fingerprint
+    cluster = Cluster.__new__(Cluster)
+    cluster.scene_path = Path(CORNELL)
+    mine = {"code": code_fingerprint(), "versions": _versions()}
+    slot = _Slot(1, None, host="node7", pid=42)
+    r = SimpleNamespace(plan=[(0, 16, 2)] * 4)
+    good = dict(mine, error=None, plan=list(r.plan), package="/x")
+    cluster._check_worker(slot, good, mine, r)
+    for bad, words in ((dict(good, code="0" * 16), "other code"),
+                       (dict(good, versions=dict(mine["versions"], mitsuba="3.0.0")), "3.0.0"),
+                       (dict(good, plan=r.plan[:3]), "other passes"),
+                       (dict(good, error="file not found"), "could not load the scene")):
+        with pytest.raises(ClusterError, match=words):
+            cluster._check_worker(slot, bad, mine, r)
