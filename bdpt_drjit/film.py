@@ -76,14 +76,37 @@ class FilmAccumulator:
             block.put(pos, wl, value, 0.0, 0.0, mine)
 
     # -- raw sums (cluster rendering) ------------------------------------------------------
-    def raw(self) -> dict:
-        """The undeveloped sums: camera and light blocks (and layers), light paths."""
-        out = {"camera": np.array(self.camera.tensor()), "light": np.array(self.light.tensor()),
-               "camera_samples": self.camera_samples}
+    def _raw_blocks(self) -> dict:
+        """The blocks by their key in ``raw()``."""
+        out = {"camera": self.camera, "light": self.light}
         for kind, blocks in (("camera", self.layer_camera), ("light", self.layer_light)):
             for index, block in blocks.items():
-                out["layer:%d:%s" % (index, kind)] = np.array(block.tensor())
+                out["layer:%d:%s" % (index, kind)] = block
         return out
+
+    def raw(self) -> dict:
+        """The undeveloped sums: camera and light blocks (and layers), and the camera
+        samples that normalize the light image."""
+        out = {key: np.array(block.tensor()) for key, block in self._raw_blocks().items()}
+        out["camera_samples"] = self.camera_samples
+        return out
+
+    def add_raw(self, raw: dict) -> None:
+        """Add undeveloped sums (``raw()`` of a film of the same size and layers, or a
+        sum of several, in any float type) to this film's: ``develop()`` then
+        develops them as if their samples had been put here."""
+        blocks = self._raw_blocks()
+        if set(raw) - {"camera_samples"} != set(blocks):
+            raise ValueError("bdpt: raw film sums with blocks %s do not fit this film's %s"
+                             % (sorted(set(raw) - {"camera_samples"}), sorted(blocks)))
+        for key, block in blocks.items():
+            data = np.asarray(raw[key], dtype=np.float32)
+            if data.shape != tuple(block.tensor().shape):
+                raise ValueError("bdpt: raw film block %r has shape %s, this film's is %s"
+                                 % (key, data.shape, tuple(block.tensor().shape)))
+            block.put_block(mi.ImageBlock(mi.TensorXf(data), block.offset(), self.film.rfilter(),
+                                          block.has_border()))
+        self.camera_samples += int(raw["camera_samples"])
 
     def blocks(self) -> list:
         return ([self.camera, self.light] + list(self.layer_camera.values())

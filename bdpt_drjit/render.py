@@ -16,6 +16,7 @@ pixels at 1 sample for very large films.  Peak memory does not grow with spp.
 """
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field, replace
 
@@ -432,6 +433,18 @@ class Renderer:
         return store, light_rays
 
     # -- results -------------------------------------------------------------------
+    def load_raw(self, raw: dict | None, passes: int, time: float = 0.0, rays: int = 0) -> None:
+        """Make the film hold ``raw``: the film sums (``film.raw()``) of passes 0 to
+        ``passes`` - 1 of this plan, rendered elsewhere and added up (cluster.py), and
+        count those passes as this renderer's, with their render ``time`` and ``rays``:
+        ``result()`` then develops them."""
+        self.film.clear()
+        if raw:
+            self.film.add_raw(raw)
+        self.passes_done = int(passes)
+        self.spp_done = sum(n * spp for _, n, spp in self.plan[:passes]) / self.pixels
+        self.time, self.rays = float(time), int(rays)
+
     def tensor(self) -> mi.TensorXf:
         return self.film.develop()
 
@@ -461,17 +474,27 @@ class Renderer:
 
 
 def render(scene, spp: int | None = None, seed: int = 0, sensor=0,
-           strategy_images: bool = False, **settings) -> RenderResult:
+           strategy_images: bool = False, cluster: str | None = None,
+           scene_params: dict | None = None, **settings) -> RenderResult:
     """Render ``scene`` (a ``mi.Scene`` or a path to an XML file) with BDPT.
 
     Keyword settings: see ``bdpt_drjit.settings.PARAMS`` (max_depth, rr_depth, mis,
     light_image, hide_emitters, technique, strategy_subset, samples_per_pass,
     memory_budget).  With ``strategy_images=True`` the result's
     ``strategy_images[(s, t)]`` holds every strategy's MIS-weighted image; they sum
-    to ``image``.
+    to ``image``.  ``scene_params``: the XML file's parameters ($name).
+    ``cluster``: render the passes on Ray workers (``"local:N"``, ``"auto"`` or a Ray
+    address; ``scene`` must then be a file path): the same estimator (cluster.py).
     """
-    if isinstance(scene, str):
-        scene = mi.load_file(scene)
+    if cluster is not None:
+        from .cluster import render_on_cluster
+        return render_on_cluster(scene, cluster, spp=spp, seed=seed, sensor=sensor,
+                                 strategy_images=strategy_images, scene_params=scene_params,
+                                 **settings)
+    if isinstance(scene, (str, os.PathLike)):
+        scene = mi.load_file(str(scene), **(scene_params or {}))
+    elif scene_params:
+        raise ValueError("bdpt: scene_params apply to a scene file, not to a loaded mi.Scene")
     r = Renderer(scene, sensor=sensor, spp=spp, seed=seed, strategy_images=strategy_images,
                  **settings)
     while not r.done:

@@ -3,6 +3,7 @@
     bdpt render [SCENE.xml] [-o out.exr] [--spp N] [--seed N] [--time SECONDS]
                 [--checkpoint SECONDS] [--res WxH] [-D key=value ...] [--sensor N]
                 [--variant llvm_ad_rgb] [renderer settings] [--strategy-images] [--quiet]
+                [--cluster local:N|auto|ray://HOST:PORT]
     bdpt merge a.exr b.exr ... -o out.exr
     bdpt info [SCENE.xml] [-D key=value ...] [--sensor N]
     bdpt info IMAGE.exr
@@ -20,6 +21,9 @@ what the image is: ``spp`` (int), ``seed``, ``passes``, ``render_time``, ``scene
 ``bdpt_version`` and the settings, so that ``bdpt merge`` can combine independent
 renders (different seeds) weighted by their spp, and ``bdpt info`` can show it.
 Files are replaced atomically, so an interrupted write never leaves a broken file.
+
+With ``--cluster`` the passes run on Ray workers and are merged in pass order
+(``bdpt_drjit.cluster``): the same image as a local render of the seed, the same stops.
 
 Errors in the input (missing or malformed scene, unsupported plugins, bad
 options, an unwritable output, no usable LLVM) are reported as one line on

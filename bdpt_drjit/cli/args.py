@@ -175,6 +175,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--checkpoint", type=_positive_float, metavar="SECONDS",
                    help="rewrite the output every SECONDS while rendering (a failed "
                         "rewrite is reported and rendering goes on)")
+    r.add_argument("--cluster", metavar="ADDRESS",
+                   help="render the passes on Ray workers: local:N (a Ray cluster of N "
+                        "worker processes on this machine), auto (the cluster this machine "
+                        "joined with 'ray start') or ray://HOST:PORT; the scene's folder is "
+                        "shipped to the workers. Needs pip install 'bdpt-drjit[cluster]'")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     add_scene_options(r)
     add_renderer_options(r)

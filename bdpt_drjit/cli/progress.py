@@ -60,9 +60,12 @@ class Progress:
         left = per_pass * (total - r.passes_done)
         if self.budget is not None:
             left = min(left, max(0.0, self.budget - elapsed))
-        return ("[%s%s] %d/%d passes, %d/%d spp, %ssamples/s, %s left"
+        workers = getattr(r, "workers_alive", None)       # a cluster's run
+        return ("[%s%s] %d/%d passes, %d/%d spp, %ssamples/s, %s left%s"
                 % ("#" * fill, "-" * (width - fill), r.passes_done, total, r.spp_done,
-                   r.spp, fmt_rate(rate), fmt_time(left)))
+                   r.spp, fmt_rate(rate), fmt_time(left),
+                   "" if workers is None else ", %d worker%s alive"
+                   % (workers, "" if workers == 1 else "s")))
 
     def update(self, elapsed: float) -> None:
         if self.first_pass is None:
