@@ -28,6 +28,7 @@ from . import camera as camera_stage
 from . import support
 from .emitters import Emitters
 from .film import FilmAccumulator
+from .media import Media
 from .mis import Weights
 from .settings import Settings
 from .budgets import BDPT, Budget, fixed_budget
@@ -57,6 +58,7 @@ class PassContext:
     strategies: StrategySet
     weights: Weights
     emitters: Emitters
+    media: Media
     camera_sampler: mi.Sampler
     light_sampler: mi.Sampler
     budget: Budget
@@ -66,6 +68,7 @@ class PassContext:
     camera_weight: mi.Spectrum         # sensor sampling weight (spectral response)
     light_count: int                   # N_L light subpaths; camera lane i takes i mod N_L
     pick_offset: mi.Float              # a vertex cache's pick offset, uniform per pass
+    noise_key: mi.UInt32               # per pass: keys ratio tracking's numbers (media.py)
     images: StrategyImages | None = None
     connection_scale: mi.Float = None  # 1 / kappa of the pass's stored vertices
     stored: mi.UInt32 = None           # V, the stored light vertices of the pass
@@ -222,6 +225,7 @@ class Renderer:
         # Refuses what bdpt would get wrong (media, unsupported plugins), warns of the rest.
         support.check(scene, self.sensor)
         self.emitters = Emitters(scene)
+        self.media = Media(scene, self.sensor)
         fixed = fixed_budget(self.settings)
         if strategy_images and fixed is None:   # the layers show every BDPT strategy
             fixed = BDPT
@@ -354,11 +358,12 @@ class Renderer:
         images = StrategyImages(self.strategies, lanes) if self.strategy_images else None
         return PassContext(
             scene=self.scene, camera=self.camera, settings=self.settings, budget=budget,
-            strategies=strategies, weights=weights, emitters=self.emitters,
+            strategies=strategies, weights=weights, emitters=self.emitters, media=self.media,
             camera_sampler=sampler, light_sampler=self._sampler(index, 1, max(n_light, 1), spp),
             lane=dr.arange(mi.UInt32, lanes), time=rays.ray.time,
             wavelengths=rays.ray.wavelengths, camera_weight=rays.weight,
             light_count=n_light, pick_offset=dr.opaque(mi.Float, _unit(self.seed, index)),
+            noise_key=dr.opaque(mi.UInt32, _mix_seed(self.seed, index, 2) & 0xFFFFFFFF),
             images=images, pixel=rays.pixel,
             moments=MomentSamples(lanes) if moments else None)
 
