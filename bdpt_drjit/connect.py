@@ -33,11 +33,14 @@ from .surface import finite, spectrum_nonzero
 from .vertices import NONE
 
 
-def emission_hit(ctx, state, si):
+def emission_hit(ctx, state, v):
     """s = 0, t = j + 1: the camera ray arriving at z_j hit an area emitter."""
     t = state.depth + 1
-    emitter = si.emitter(ctx.scene, state.active)
-    hit = state.active & (emitter != None) & ctx.strategies.enabled(0, t)  # noqa: E711
+    si = v.si
+    # A medium vertex's si is invalid, which si.emitter() reads as the environment.
+    surface = state.active & ~v.in_medium if ctx.media.present else state.active
+    emitter = si.emitter(ctx.scene, surface)
+    hit = surface & (emitter != None) & ctx.strategies.enabled(0, t)  # noqa: E711
     contrib = state.beta * emitter.eval(si, hit)
     n, to_prev = si.sh_frame.n, si.to_world(si.wi)
     pos_pdf_a, emission_pdf_aw = mi.Float(0.0), mi.Float(0.0)

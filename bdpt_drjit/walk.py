@@ -185,7 +185,7 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
         _camera_vertex_mis(ctx, state, v, flight)
         connectible = state.active & v.smooth
         if ctx.emitters.count:
-            _add(ctx, state, 0, t, connect.emission_hit(ctx, state, v.si))
+            _add(ctx, state, 0, t, connect.emission_hit(ctx, state, v))
             _add(ctx, state, 1, t, *connect.next_event(
                 ctx, state, v, u.endpoint, connectible & ctx.strategies.enabled(1, t)))
         if store is not None:
