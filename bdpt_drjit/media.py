@@ -123,50 +123,51 @@ class Media:
         """The medium around p: follow the ray (p, d) to the first surface of a shape
         with media, and take the medium on the side the ray arrives from; the
         unbounded region's medium if there is none."""
-        ray = mi.Ray3f(p, d, time)
-        medium = dr.select(active, mi.MediumPtr(self.unbounded), mi.MediumPtr(None))
+        found, medium, _ = self._boundary_ahead(mi.Ray3f(p, d, time), active)
+        return dr.select(found, medium, dr.select(active, mi.MediumPtr(self.unbounded),
+                                                  mi.MediumPtr(None)))
 
-        def body(ray, medium, going):
+    def _boundary_ahead(self, ray, active):
+        """(found, medium behind it, shape): the first medium boundary along ``ray``."""
+        def body(ray, found, medium, shape, going):
             si = self.scene.ray_intersect(ray, going)
-            found = going & si.is_valid() & si.is_medium_transition()
-            medium = dr.select(found, si.target_medium(-ray.d), medium)
-            going &= si.is_valid() & ~found
+            hit = going & si.is_valid() & si.is_medium_transition()
+            found |= hit
+            medium = dr.select(hit, si.target_medium(-ray.d), medium)
+            shape = dr.select(hit, si.shape, shape)
+            going &= si.is_valid() & ~hit
             ray = dr.select(going, si.spawn_ray(ray.d), ray)
-            return ray, medium, going
+            return ray, found, medium, shape, going
 
-        _, medium, _ = dr.while_loop((ray, medium, mi.Bool(active)),
-                                     lambda ray, medium, going: going, body,
-                                     label="locate medium")
-        return medium
+        n = dr.width(active)
+        state = (mi.Ray3f(ray), dr.zeros(mi.Bool, n), dr.zeros(mi.MediumPtr, n),
+                 dr.zeros(mi.ShapePtr, n), mi.Bool(active))
+        _, found, medium, shape, _ = dr.while_loop(state, lambda *s: s[-1], body,
+                                                   label="find medium boundary")
+        return found, medium, shape
 
     def _check_camera(self, sensor):
-        """The unbounded region's medium, from where the camera is; refuses a sensor
-        whose ``medium`` is not the medium around it."""
-        origin = sensor.world_transform() @ mi.ScalarPoint3f(0.0)
-        p = mi.Point3f(origin)
-        d = mi.Vector3f(0.3, 0.5, 0.8)
-        ray = mi.Ray3f(p, dr.normalize(d))
-        si = self.scene.ray_intersect(ray)
-        escaped = True
-        while bool(si.is_valid()[0]):
-            if bool(si.is_medium_transition()[0]):
-                escaped = False
-                break
-            ray = si.spawn_ray(ray.d)
-            si = self.scene.ray_intersect(ray)
-        if escaped:
-            return self.camera
-        around = si.target_medium(-ray.d)
-        declared = mi.MediumPtr(self.camera)
-        if (dr.reinterpret_array(mi.UInt32, around)[0]
-                != dr.reinterpret_array(mi.UInt32, declared)[0]):
+        """The unbounded region's medium, from where the camera's rays start (at its
+        near clip distance); refuses a sensor whose ``medium`` is not the medium there.
+        Nine rays over the film: each finds the first medium boundary ahead and the
+        medium before it; a ray that finds none shows the camera in the unbounded
+        region."""
+        u = [0.02, 0.5, 0.98]
+        pos = mi.Point2f([x for x in u for _ in u], [y for _ in u for y in u])
+        rays, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
+        found, around, shape = self._boundary_ahead(mi.Ray3f(rays), dr.full(mi.Bool, True, 9))
+        declared = dr.reinterpret_array(mi.UInt32, mi.MediumPtr(self.camera))
+        wrong = found & (dr.reinterpret_array(mi.UInt32, around) != declared)
+        if dr.any(wrong):
+            i = int(dr.compress(wrong)[0])
             raise ValueError(
-                "bdpt: the sensor's medium is %s, but the camera lies inside %s (a ray from "
-                "it leaves through shape '%s'): declare the medium around the camera as the "
-                "sensor's <ref name=\"medium\"/>, or the camera and light subpaths would "
-                "disagree about where they travel"
-                % (_name(self.camera), _name(around[0]), si.shape[0].id()))
-        return None
+                "bdpt: the sensor's medium is %s, but its rays start inside %s (the first medium "
+                "boundary ahead of them is shape '%s'; the camera lies inside it, or within "
+                "near_clip of its boundary): declare the medium around the camera as the sensor's <ref "
+                "name=\"medium\"/>, or move the camera, or the camera and light subpaths "
+                "would disagree about where they travel"
+                % (_name(self.camera), _name(around[i]), shape[i].id()))
+        return self.camera if not dr.all(found) else None
 
     def start_medium(self, es, time, active) -> mi.MediumPtr:
         """The medium a light subpath leaves y_0 in (module docstring): an area light on
