@@ -65,6 +65,31 @@ def test_global_medium_without_boundary():
                                what="global fog")
 
 
+def test_area_light_on_a_shape_with_media():
+    """A sphere light whose shape declares the fog outside it (and another medium
+    inside): light subpaths start in the medium on the side they leave by.  (A box
+    filter: with a wider one, light-image splats near the border lose the part of
+    their footprint outside the film, in Mitsuba's ptracer as here, and this lamp at
+    the frame's edge read 10% low in both.)"""
+    T = mi.ScalarTransform4f
+    scene = mi.load_dict({
+        "type": "scene",
+        "fog": {"type": "homogeneous", "id": "fog", "sigma_t": 0.4, "albedo": 0.8},
+        "room": {"type": "cube", "bsdf": {"type": "null"}, "interior": {"type": "ref", "id": "fog"},
+                 "to_world": T().scale(2.0)},
+        "lamp": {"type": "sphere", "center": [0, 1, 0], "radius": 0.15,
+                 "exterior": {"type": "ref", "id": "fog"},
+                 "interior": {"type": "homogeneous", "sigma_t": 5.0},
+                 "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}},
+                 "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 20.0}}},
+        "floor": {"type": "rectangle", "to_world": T().translate([0, -1, 0]).rotate([1, 0, 0], -90).scale(1.5)},
+        "sensor": {"type": "perspective", "fov": 60, "medium": {"type": "ref", "id": "fog"},
+                   "to_world": T().look_at([0, 0, 1.8], [0, 0, 0], [0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 16, "height": 16, "rfilter": {"type": "box"}}}})
+    assert_statistically_equal(_bdpt(scene, 64, 8, max_depth=6), _volpath(scene, 1024, 8, max_depth=6),
+                               what="area light with media")
+
+
 @pytest.mark.auto_budget
 def test_auto_budget_agrees_with_volpath():
     """The default budget (its pilot included) with medium vertices on both walks."""
@@ -82,7 +107,7 @@ def _assert_means_equal(a, b, what, p_false=1e-4):
         "%s: %g vs %g (t = %.1f)" % (what, a.mean(), b.mean(), t)
 
 
-@pytest.mark.parametrize("k", [2, 3])
+@pytest.mark.parametrize("k", [1, 2, 3, 4])
 def test_every_technique_matches_volpath_at_its_length(k):
     """Each (s, t) with s + t - 1 = k, unweighted, estimates the paths of length k
     through fog (volpath at max_depth k minus max_depth k - 1): the distance
@@ -90,8 +115,8 @@ def test_every_technique_matches_volpath_at_its_length(k):
     scene = _load("fog-room.xml", res=12)
     seeds = 6
     ref = [(mitsuba_render(scene, "volpath", 1024, 100 + s, max_depth=k)
-            - mitsuba_render(scene, "volpath", 1024, 200 + s, max_depth=k - 1))[..., :3].mean()
-           for s in range(seeds)]
+            - (mitsuba_render(scene, "volpath", 1024, 200 + s, max_depth=k - 1) if k > 1 else 0.0)
+            )[..., :3].mean() for s in range(seeds)]
     for s_ in range(0, k + 1):
         t = k + 1 - s_
         est = [x.mean() for x in _bdpt(scene, 256, seeds, max_depth=k, technique=(s_, t))]
@@ -138,7 +163,7 @@ def _room_seen_from(z, medium):
     on the axis at z, looking in, with the sensor's medium ``medium``."""
     T = mi.ScalarTransform4f
     sensor = {"type": "perspective", "fov": 60, "to_world": T().look_at([0, 0, z], [0, 0, 0], [0, 1, 0]),
-              "film": {"type": "hdrfilm", "width": 16, "height": 16}}
+              "film": {"type": "hdrfilm", "width": 16, "height": 16, "rfilter": {"type": "box"}}}
     if medium:
         sensor["medium"] = {"type": "ref", "id": "fog"}
     return mi.load_dict({
