@@ -24,6 +24,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from . import aovs
 from . import camera as camera_stage
 from . import support
 from .emitters import Emitters
@@ -110,6 +111,13 @@ class RenderResult:
     time: float = 0.0
     rays: int = 0
     stats: dict = field(default_factory=dict)
+    aov_names: list = field(default_factory=list)   # the last channels' names (aovs.py)
+
+    @property
+    def channels(self) -> list:
+        """The image's channel names: the film's (``exr.channel_names``), then AOVs'."""
+        from .exr import channel_names
+        return channel_names(self.image.shape[2] - len(self.aov_names)) + self.aov_names
 
     @property
     def strategies(self) -> dict:
@@ -255,7 +263,10 @@ class Renderer:
         self.pilot, self._stride = None, {}
         if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
             self._plan_pilot(max_lanes)
-        self.film = FilmAccumulator(film, coalesce=self.spp >= 4, layers=layers)
+        aov_list = aovs.parse(self.settings.aovs)
+        self.aovs = aovs.AOVs(scene, aov_list) if aov_list else None
+        self.film = FilmAccumulator(film, coalesce=self.spp >= 4, layers=layers,
+                                    aov_names=aovs.channel_names(aov_list))
         self.passes_done = 0
         self.spp_done = 0.0           # samples per pixel rendered (fractional: pixel ranges)
         self.time = 0.0
@@ -392,6 +403,8 @@ class Renderer:
         opaque = self.emitters.environment is not None and not self.settings.hide_emitters
         self.film.put_camera(rays, cam.radiance, cam.hit | opaque,
                              None if ctx.images is None else ctx.images.values, lanes)
+        if self.aovs is not None:
+            self.film.put_aovs(rays, self.aovs.values(rays.ray))
         if store is not None:
             self.film.put_splats(store.splats.items, store.splats.size(), ctx.wavelengths,
                                  lanes / ctx.light_count,
@@ -456,7 +469,7 @@ class Renderer:
     def result(self) -> RenderResult:
         tensor = self.tensor()
         layers = self.film.develop_layers() if self.strategy_images else {}
-        return RenderResult(image=tensor.numpy(), tensor=tensor,
+        return RenderResult(image=tensor.numpy(), tensor=tensor, aov_names=self.film.aov_names,
                             strategy_images={k: v.numpy() for k, v in layers.items() if k[0] != "k"},
                             length_images={k[1]: v.numpy() for k, v in layers.items() if k[0] == "k"},
                             spp=int(self.spp_done + 1e-9), passes=self.passes_done, time=self.time,

@@ -160,6 +160,11 @@ MEDIA_SCENE_LIST = [
                expected_failure="None: volpath converges; heterogeneous media leave distance "
                "densities out of bdpt's weights.",
                effect="Heterogeneous cloud under a sky and a sphere light"),
+    BenchScene(name="volumetric-caustic-point", file=ROOT / "scenes" / "media" / "volumetric-caustic.xml",
+               max_depth=8, reference="bdpt-power", baseline="volpath",
+               expected_failure="volpath cannot render the cone at all (a camera path would have "
+               "to hit a point light through glass): its error stops falling at that bias.",
+               effect="Point light focused by a glass ball into fog"),
     BenchScene(name="volumetric-caustic", file=ROOT / "scenes" / "media" / "volumetric-caustic-sphere.xml",
                max_depth=8, reference="bdpt-power", baseline="volpath",
                expected_failure="volpath renders the cone of light a glass ball focuses into fog "

@@ -131,7 +131,8 @@ def _make_class(base: type) -> type:
             raise NotImplementedError(GRADIENT_ERROR % "backward")
 
         def aov_names(self):
-            return []
+            from bdpt_drjit import aovs
+            return aovs.channel_names(aovs.parse(self.settings.get("aovs", "")))
 
         def to_string(self):
             return "BDPTIntegrator[%s]" % ", ".join("%s=%r" % kv for kv in self.settings.items())
