@@ -15,7 +15,11 @@ Contribution of (s, t) (Veach eq. 10.8, pbrt-v3 section 16.3.3):
 with Mitsuba's ``bsdf.eval`` already holding each endpoint's shading cosine, so G
 reduces to 1 / d^2.  Light-side BSDFs are evaluated in importance mode with the
 shading-normal adjoint correction.  Every contribution passes ``finite``.
-Functions that trace a shadow ray also return where they traced one (statistics).
+In media (media.py) every connection carries the transmittance between its
+endpoints, and the densities of the distances a walk would have drawn along it join
+the endpoints' densities (``dens_fwd`` toward the far end, ``dens_rev`` back).
+Vertices are surface.Vertex: a surface or a point in a medium.
+Functions that trace shadow rays also return how many they traced (statistics).
 """
 from __future__ import annotations
 
@@ -24,18 +28,19 @@ import mitsuba as mi
 
 from . import mis
 from .emitters import DIRECTIONAL
-from .surface import eval_adjoint, finite, geometric_cosines, reverse_pdf, spectrum_nonzero
+from .media import connection_key
+from .surface import finite, spectrum_nonzero
 from .vertices import NONE
 
-RADIANCE = mi.BSDFContext(mi.TransportMode.Radiance)
-IMPORTANCE = mi.BSDFContext(mi.TransportMode.Importance)
 
-
-def emission_hit(ctx, state, si):
+def emission_hit(ctx, state, v):
     """s = 0, t = j + 1: the camera ray arriving at z_j hit an area emitter."""
     t = state.depth + 1
-    emitter = si.emitter(ctx.scene, state.active)
-    hit = state.active & (emitter != None) & ctx.strategies.enabled(0, t)  # noqa: E711
+    si = v.si
+    # A medium vertex's si is invalid, which si.emitter() reads as the environment.
+    surface = state.active & ~v.in_medium if ctx.media.present else state.active
+    emitter = si.emitter(ctx.scene, surface)
+    hit = surface & (emitter != None) & ctx.strategies.enabled(0, t)  # noqa: E711
     contrib = state.beta * emitter.eval(si, hit)
     n, to_prev = si.sh_frame.n, si.to_world(si.wi)
     pos_pdf_a, emission_pdf_aw = mi.Float(0.0), mi.Float(0.0)
@@ -54,12 +59,16 @@ def emission_hit(ctx, state, si):
     return contrib
 
 
-def environment_hit(ctx, state, escaped):
+def environment_hit(ctx, state, flight):
     """s = 0, t = j + 1: the camera ray leaving z_{j-1} escaped to the environment
     (the chains as the last scatter left them, in solid angle at z_{j-1})."""
     env = ctx.emitters.environment
     t = state.depth + 1
-    active = escaped & ctx.strategies.enabled(0, t)
+    active = flight.escaped & ctx.strategies.enabled(0, t)
+    d_vcm, d_vc, d_end = state.d_vcm, state.d_vc, state.d_end
+    if ctx.media.present:
+        d_vcm, d_vc = ctx.weights.after_escape(d_vcm, d_vc, flight.dens_fwd, flight.dens_rev)
+        d_end = d_end * flight.dens_rev / flight.dens_fwd
     ray = state.ray
     contrib = state.beta * ctx.emitters.environment_radiance(env, -ray.d, ray.wavelengths,
                                                              ray.time, active)
@@ -70,11 +79,11 @@ def environment_hit(ctx, state, escaped):
     else:
         nee_pdf_w = ctx.emitters.environment_nee_pdf_w(mi.EmitterPtr(env), state.prev, ray.d, rival)
         emission_pdf_aw = mi.Float(0.0)
-    contrib *= ctx.weights.environment_hit(state.d_vcm, state.d_vc, state.lw, state.depth == 1,
+    contrib *= ctx.weights.environment_hit(d_vcm, d_vc, state.lw, state.depth == 1,
                                            nee_pdf_w, emission_pdf_aw)
     contrib = dr.select(active, finite(contrib), 0.0)
     if ctx.moments is not None:        # an escape at once has no rival: all path tracing
-        u_pt, u_lt = mis.groups_emission_hit(state.d_vcm, state.d_vc, state.d_end, False,
+        u_pt, u_lt = mis.groups_emission_hit(d_vcm, d_vc, d_end, False,
                                              nee_pdf_w, emission_pdf_aw)
         first = state.depth == 1
         state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, contrib,
@@ -82,32 +91,36 @@ def environment_hit(ctx, state, escaped):
     return contrib
 
 
-def next_event(ctx, state, si, bsdf, sample, active):
+def next_event(ctx, state, v, sample, active):
     """s = 1, t = j + 1: sample a point on an emitter from z_j (Mitsuba's own light
     sampling, so its pdf includes the selection pmf) and connect to it."""
     scene = ctx.scene
-    ds, spec = scene.sample_emitter_direction(si, sample, False, active)
+    ds, spec = scene.sample_emitter_direction(v.si, sample, False, active)
     active = active & (ds.pdf > 0) & spectrum_nonzero(spec)
-    _, cos_cam, ok = geometric_cosines(si, ds.d)
+    cos_cam, ok = v.cosine(ds.d)
     active = active & ok
-    wo = si.to_local(ds.d)
-    f, bsdf_pdf_w = bsdf.eval_pdf(RADIANCE, si, wo, active)
+    f, bsdf_pdf_w = v.eval(ds.d, active)
     contrib = state.beta * f * spec
     traced = active & spectrum_nonzero(contrib)
-    active = traced & ~scene.ray_test(si.spawn_ray_to(ds.p), traced)
+    key = connection_key(ctx, state.depth, 0)
+    tr, dens_fwd, dens_rev, rays = ctx.media.transmittance(v, ds.p, 1.0, key, traced)
+    contrib *= tr
+    active = traced & spectrum_nonzero(tr)
     weights = ctx.weights
     if weights.on:
         bsdf_rev_w, emission_pdf_aw, cos_light = mi.Float(0.0), mi.Float(0.0), mi.Float(1.0)
         if weights.chains:
-            bsdf_rev_w = reverse_pdf(bsdf, IMPORTANCE, si, wo, active)
+            bsdf_rev_w = v.reverse_pdf(ds.d, active)
             _, emission_pdf_aw, cos_light, _ = ctx.emitters.emission_pdfs(ds.emitter, ds.n, -ds.d, active)
+            emission_pdf_aw *= dens_rev
         directional = False
         if DIRECTIONAL in ctx.emitters.kinds_present:
             directional = ctx.emitters.kind_of(ds.emitter, active) == DIRECTIONAL
         nee_pdf_w = weights.nee_density_w(
-            ds, scene.pdf_emitter_direction(si, ds, active & ~ds.delta), directional)
+            ds, scene.pdf_emitter_direction(v.si, ds, active & ~ds.delta), directional)
+        bsdf_pdf_w = bsdf_pdf_w * dens_fwd
         contrib *= weights.nee(state.d_vcm, state.d_vc, state.lw, state.depth,
-                               weights.specularity(bsdf.flags()), ds.delta, bsdf_pdf_w,
+                               weights.specularity(v.bsdf.flags()), ds.delta, bsdf_pdf_w,
                                nee_pdf_w, emission_pdf_aw, cos_cam, cos_light, bsdf_rev_w)
     contrib = dr.select(active, finite(contrib), 0.0)
     if ctx.moments is not None:
@@ -115,19 +128,19 @@ def next_event(ctx, state, si, bsdf, sample, active):
             state.d_vcm, state.d_vc, state.d_end, state.depth == 1,
             dr.select(ds.delta, 0.0, bsdf_pdf_w / nee_pdf_w),
             emission_pdf_aw * cos_cam / (nee_pdf_w * cos_light), bsdf_rev_w), active)
-    return contrib, traced
+    return contrib, rays
 
 
-def stored_vertices(ctx, store, state, si, bsdf, connectible):
+def stored_vertices(ctx, store, state, v, connectible):
     """s, t >= 2: z_j (t = j + 1) to the stored light vertices, each y_{s-1} of the
     lane's light subpath, or (a vertex cache) M vertices drawn from all of them.
     Returns the radiance with these strategies added, and the shadow rays traced."""
     if ctx.budget.caches:
-        return _cached_vertices(ctx, store, state, si, bsdf, connectible)
-    return _subpath_vertices(ctx, store, state, si, bsdf, connectible)
+        return _cached_vertices(ctx, store, state, v, connectible)
+    return _subpath_vertices(ctx, store, state, v, connectible)
 
 
-def _subpath_vertices(ctx, store, state, si, bsdf, connectible):
+def _subpath_vertices(ctx, store, state, v, connectible):
     """Every stored vertex of the lane's light subpath, in a symbolic loop along its
     list.  The list runs y_1, y_2, ..., so the loop stops at the first vertex whose
     path would be longer than max_depth."""
@@ -145,11 +158,11 @@ def _subpath_vertices(ctx, store, state, si, bsdf, connectible):
     def body(item, radiance, rays, slot):
         light = store.vertex(item, True)
         on = ctx.strategies.enabled(light.s, t)
-        c, traced, groups = connect_vertices(ctx, light, on, state, si, bsdf)
+        c, traced, groups = connect_vertices(ctx, light, on, state, v)
         radiance = ctx.strategies.add(ctx.images, radiance, ctx.lane, light.s, t, c)
         if groups is not None:
             slot = ctx.moments.add(slot, ctx.lane, ctx.pixel, c, *groups, on)
-        return light.next, radiance, rays + dr.select(traced, 1, 0), slot
+        return light.next, radiance, rays + traced, slot
 
     _, radiance, rays, state.slot = dr.while_loop(
         (dr.select(connectible, first, NONE), mi.Spectrum(state.radiance),
@@ -161,7 +174,7 @@ def _subpath_vertices(ctx, store, state, si, bsdf, connectible):
 _GOLDEN = 0.6180339887498949
 
 
-def _cached_vertices(ctx, store, state, si, bsdf, connectible):
+def _cached_vertices(ctx, store, state, v, connectible):
     """M vertices drawn uniformly from the V stored vertices of the pass (Davidovic et
     al. 2014).  Lane i's m-th pick is item (i M + m + o_j) mod V, with o_j uniform per
     pass and camera depth j: each pick is uniform over the pool, and neighbouring
@@ -177,42 +190,45 @@ def _cached_vertices(ctx, store, state, si, bsdf, connectible):
         position = (ctx.lane * picks + m + offset) % ctx.stored
         light = store.vertex(dr.gather(mi.UInt32, order, position, connectible), connectible)
         on = connectible & ctx.strategies.enabled(light.s, t)
-        c, traced, _ = connect_vertices(ctx, light, on, state, si, bsdf)
+        c, traced, _ = connect_vertices(ctx, light, on, state, v)
         radiance = ctx.strategies.add(ctx.images, radiance, ctx.lane, light.s, t,
                                       c * ctx.connection_scale)
-        rays += dr.select(traced, 1, 0)
+        rays += traced
     return radiance, rays
 
 
-def connect_vertices(ctx, light, active, cam, si_c, bsdf_c):
+def connect_vertices(ctx, light, active, cam, v_c):
     """s, t >= 2: connect the stored light vertex y_{s-1} (``light``) to the camera
-    vertex z_{t-1} the camera walk is at (``si_c``, ``bsdf_c``, state ``cam``)."""
-    si_l = light.surface.interaction(si_c.time, si_c.wavelengths)
-    bsdf_l = si_l.bsdf()
-    d = si_l.p - si_c.p
+    vertex z_{t-1} the camera walk is at (``v_c``, state ``cam``).  Returns the
+    contribution, the shadow rays traced and (pilot passes) the moment groups."""
+    v_l = light.record.vertex(v_c.si.time, v_c.si.wavelengths, ctx.media.present)
+    d = v_l.p - v_c.p
     dist2 = dr.squared_norm(d)
     w = d * dr.rsqrt(dist2)                     # from z_{t-1} toward y_{s-1}
     active = active & (dist2 > 0)
-    _, cos_c, ok_c = geometric_cosines(si_c, w)
-    _, cos_l, ok_l = geometric_cosines(si_l, -w)
+    cos_c, ok_c = v_c.cosine(w)
+    cos_l, ok_l = v_l.cosine(-w)
     active = active & ok_c & ok_l
-    wc, wl = si_c.to_local(w), si_l.to_local(-w)
-    f_c, pdf_c_w = bsdf_c.eval_pdf(RADIANCE, si_c, wc, active)
-    f_l, rev_l_w = eval_adjoint(bsdf_l, si_l, wl, active)
+    f_c, pdf_c_w = v_c.eval(w, active)
+    f_l, rev_l_w = v_l.eval_adjoint(-w, active)
     contrib = cam.beta * f_c * f_l * light.beta / dist2
     traced = active & spectrum_nonzero(contrib)
-    active = traced & ~ctx.scene.ray_test(si_c.spawn_ray_to(si_l.p), traced)
+    key = connection_key(ctx, cam.depth, light.s)
+    tr, dens_fwd, dens_rev, rays = ctx.media.transmittance(v_c, v_l.p, v_l.sigma_t(), key, traced)
+    contrib *= tr
+    active = traced & spectrum_nonzero(tr)
     weights = ctx.weights
     if weights.on:
-        pdf_l_w = bsdf_l.pdf(IMPORTANCE, si_l, wl, active)
-        rev_c_w = reverse_pdf(bsdf_c, IMPORTANCE, si_c, wc, active)
-        pdf_c_a, pdf_l_a = pdf_c_w * cos_l / dist2, pdf_l_w * cos_c / dist2
+        pdf_l_w = v_l.pdf(-w, active)
+        rev_c_w = v_c.reverse_pdf(w, active)
+        pdf_c_a = pdf_c_w * cos_l / dist2 * dens_fwd
+        pdf_l_a = pdf_l_w * cos_c / dist2 * dens_rev
         contrib *= weights.connect(light, cam.d_vcm, cam.d_vc, cam.depth, cam.lw,
-                                   weights.specularity(bsdf_c.flags()),
+                                   weights.specularity(v_c.bsdf.flags()),
                                    pdf_c_a, rev_c_w, pdf_l_a, rev_l_w)
     contrib = dr.select(active, finite(contrib), 0.0)
     groups = None
     if ctx.moments is not None:
         groups = mis.groups_connect(light, light.s == 2, cam.d_vcm, cam.d_vc, cam.d_end,
                                     cam.depth == 1, pdf_c_a, rev_c_w, pdf_l_a, rev_l_w)
-    return contrib, traced, groups
+    return contrib, rays, groups

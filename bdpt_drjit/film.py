@@ -18,6 +18,10 @@ kernels never hold the film's size.  Per-strategy images (on request) have a lay
 each (strategies.StrategySet.layers); camera-side layers borrow the camera block's
 weights when developed, so that the layers add up exactly to the image.
 
+AOVs (aovs.py, on request) have a block of their own, with the film's base channels
+(weight 1 per camera sample) and the AOV channels after them; ``develop`` appends
+the developed AOV channels to the image's.
+
 ``raw`` and ``add_raw`` hand the undeveloped sums between machines (cluster
 rendering): a merge of raw sums is the same estimator as one render of all passes.
 """
@@ -29,9 +33,16 @@ import numpy as np
 
 
 class FilmAccumulator:
-    def __init__(self, film: mi.Film, coalesce: bool, layers: list | None = None):
+    def __init__(self, film: mi.Film, coalesce: bool, layers: list | None = None,
+                 aov_names: list | None = None):
         self.film = film
-        film.prepare([])
+        self.aov_names = list(aov_names or [])
+        self.aov = None
+        self.base_channels = film.prepare([])
+        if self.aov_names:
+            film.prepare(self.aov_names)
+            self.aov = film.create_block()
+            film.prepare([])
         self.camera = film.create_block()
         self.camera.set_coalesce(self.camera.coalesce() and coalesce)
         self.light = self._splat_block()
@@ -61,6 +72,11 @@ class FilmAccumulator:
             value = dr.gather(mi.Spectrum, images, dr.arange(mi.UInt32, lanes) + offset)
             block.put(rays.pos, rays.ray.wavelengths, value, 0.0, 0.0)
 
+    def put_aovs(self, rays, values: list):
+        """One value per AOV channel and camera sample (aovs.AOVs.values)."""
+        base = [mi.Float(0.0)] * (self.base_channels - 1) + [mi.Float(1.0)]   # weight last
+        self.aov.put(rays.pos, base + values)
+
     def put_splats(self, splats, count: int, wavelengths, scale: float, layer_of=None):
         """The light image's splats of a pass (``splats``: the pool's items), times
         ``scale`` = N_C / N_L of the pass.  Light subpath l has the wavelengths of
@@ -79,6 +95,8 @@ class FilmAccumulator:
     def _raw_blocks(self) -> dict:
         """The blocks by their key in ``raw()``."""
         out = {"camera": self.camera, "light": self.light}
+        if self.aov is not None:
+            out["aov"] = self.aov
         for kind, blocks in (("camera", self.layer_camera), ("light", self.layer_light)):
             for index, block in blocks.items():
                 out["layer:%d:%s" % (index, kind)] = block
@@ -109,8 +127,8 @@ class FilmAccumulator:
         self.camera_samples += int(raw["camera_samples"])
 
     def blocks(self) -> list:
-        return ([self.camera, self.light] + list(self.layer_camera.values())
-                + list(self.layer_light.values()))
+        return ([self.camera, self.light] + ([] if self.aov is None else [self.aov])
+                + list(self.layer_camera.values()) + list(self.layer_light.values()))
 
     def clear(self) -> None:
         for block in self.blocks():
@@ -130,8 +148,15 @@ class FilmAccumulator:
 
     def develop(self) -> mi.TensorXf:
         """The image: the camera block developed, plus the light block scaled; the
-        light block has alpha 0, so alpha is the camera block's."""
-        return self._develop(self.camera) + self._develop(self.light) * self._light_scale()
+        light block has alpha 0, so alpha is the camera block's.  AOV channels last."""
+        img = self._develop(self.camera) + self._develop(self.light) * self._light_scale()
+        if self.aov is None:
+            return img
+        self.film.prepare(self.aov_names)
+        self.film.put_block(self.aov)
+        aov = self.film.develop()
+        self.film.prepare([])
+        return dr.concat([img, aov[..., -len(self.aov_names):]], axis=-1)
 
     def develop_layers(self) -> dict:
         """Each layer's image; they add up to ``develop()``."""

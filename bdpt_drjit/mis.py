@@ -127,16 +127,18 @@ def light_start(h: Heuristic, emission_pdf, cos_emit, delta_position):
     return dr.select(delta_position, 0.0, h(_div(cos_emit, emission_pdf)))
 
 
-def light_first_hit(h: Heuristic, d_vc0, nee_pdf_a, emission_pdf, dist2, cos_hit):
+def light_first_hit(h: Heuristic, d_vc0, nee_pdf_a, emission_pdf, dist2, cos_hit,
+                    dens_fwd=1.0, dens_rev=1.0):
     """(d_vcm, d_vc) at y_1 (tech. rep. eqs. 32 and 34 combined).
 
     ``nee_pdf_a`` = P_nee(y_0 | y_1) in area measure (pmf included): the density with
     which next-event estimation from y_1 would have chosen y_0.  For a delta-position
     emitter it is the selection pmf (the position delta cancels against the
-    emission's).
+    emission's).  ``dens_*``: the edge's distance densities in media (``after_hit``).
     """
-    d_vcm = h(_div(nee_pdf_a * dist2, emission_pdf * cos_hit))
-    d_vc = _div(d_vc0, h(cos_hit))
+    inv = _div(1.0, h(cos_hit * dens_fwd))
+    d_vcm = h(_div(nee_pdf_a * dist2, emission_pdf)) * inv
+    d_vc = d_vc0 * h(dens_rev) * inv
     return d_vcm, d_vc
 
 
@@ -144,10 +146,24 @@ def light_first_hit(h: Heuristic, d_vc0, nee_pdf_a, emission_pdf, dist2, cos_hit
 # Updates along a subpath
 # ---------------------------------------------------------------------------
 
-def after_hit(h: Heuristic, d_vcm, d_vc, dist2, cos_hit):
-    """Convert to area measure at the vertex just found (tech. rep. eq. 34)."""
-    inv_cos = _div(1.0, h(cos_hit))
-    return d_vcm * h(dist2) * inv_cos, d_vc * inv_cos
+def after_hit(h: Heuristic, d_vcm, d_vc, dist2, cos_hit, dens_fwd=1.0, dens_rev=1.0):
+    """Convert to area measure at the vertex just found (tech. rep. eq. 34).
+
+    In media (media.py) a vertex's density also holds the density of the distances
+    drawn to reach it: ``dens_fwd`` along the edge just followed, ``dens_rev`` the
+    other way, into the vertex behind (which the reverse term of d_vc stands for;
+    pbrt-v3 section 16.3.2 converts densities the same way).  ``cos_hit`` is 1 at a
+    medium vertex.
+    """
+    inv = _div(1.0, h(cos_hit * dens_fwd))
+    return d_vcm * h(dist2) * inv, d_vc * h(dens_rev) * inv
+
+
+def after_escape(h: Heuristic, d_vcm, d_vc, dens_fwd, dens_rev):
+    """``after_hit`` for a ray that escaped to the environment through media: the
+    chains stay in solid angle (no distance, no cosine at infinity)."""
+    inv = _div(1.0, h(dens_fwd))
+    return d_vcm * inv, d_vc * h(dens_rev) * inv
 
 
 def after_scatter(h: Heuristic, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta,
@@ -311,8 +327,11 @@ class Weights:
     def light_start(self, emission_pdf_aw, cos_emit, delta):
         return light_start(self.h, emission_pdf_aw, cos_emit, delta)
 
-    def after_hit(self, d_vcm, d_vc, dist2, cos_hit):
-        return after_hit(self.h, d_vcm, d_vc, dist2, cos_hit)
+    def after_hit(self, d_vcm, d_vc, dist2, cos_hit, dens_fwd=1.0, dens_rev=1.0):
+        return after_hit(self.h, d_vcm, d_vc, dist2, cos_hit, dens_fwd, dens_rev)
+
+    def after_escape(self, d_vcm, d_vc, dens_fwd, dens_rev):
+        return after_escape(self.h, d_vcm, d_vc, dens_fwd, dens_rev)
 
     def after_scatter(self, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta, depth):
         return after_scatter(self.h, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta,
@@ -401,13 +420,13 @@ class Weights:
                               self.rate(light.s - 1), self.rate(cam_depth), self.kappa)
 
     def first_light_vertex(self, d_vc0, nee_pdf_a, nee_pdf_w, infinite, emission_pdf_aw,
-                           dist2, cos_hit):
+                           dist2, cos_hit, dens_fwd=1.0, dens_rev=1.0):
         """(d_vcm, d_vc) at y_1.  y_0 at infinity (environment, directional light):
         the next-event density is a solid-angle one and no distance enters (tech. rep.
         section 5.1; SmallVCM skips dist^2 for infinite lights)."""
         nee = dr.select(infinite, nee_pdf_w, nee_pdf_a)
         return light_first_hit(self.h, d_vc0, nee, emission_pdf_aw,
-                               dr.select(infinite, 1.0, dist2), cos_hit)
+                               dr.select(infinite, 1.0, dist2), cos_hit, dens_fwd, dens_rev)
 
 
 # ---------------------------------------------------------------------------
@@ -420,9 +439,9 @@ class Weights:
 # ends of the chains: one scalar per subpath, d_end, carries them (``end_after_*``);
 # at a subpath's first vertex they are the chain itself.
 
-def end_after_hit(d_end, dist2, cos_hit, first):
+def end_after_hit(d_end, dist2, cos_hit, first, dens_fwd=1.0, dens_rev=1.0):
     """d_end at the vertex just found: as d_vcm at the first vertex, as d_vc beyond."""
-    return d_end * dr.select(first, dist2, 1.0) * _div(1.0, cos_hit)
+    return d_end * dr.select(first, dist2, dens_rev) * _div(1.0, cos_hit * dens_fwd)
 
 
 def end_after_scatter(d_end, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta, first,

@@ -24,10 +24,12 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from . import aovs
 from . import camera as camera_stage
 from . import support
 from .emitters import Emitters
 from .film import FilmAccumulator
+from .media import Media
 from .mis import Weights
 from .settings import Settings
 from .budgets import BDPT, Budget, fixed_budget
@@ -57,6 +59,7 @@ class PassContext:
     strategies: StrategySet
     weights: Weights
     emitters: Emitters
+    media: Media
     camera_sampler: mi.Sampler
     light_sampler: mi.Sampler
     budget: Budget
@@ -66,6 +69,7 @@ class PassContext:
     camera_weight: mi.Spectrum         # sensor sampling weight (spectral response)
     light_count: int                   # N_L light subpaths; camera lane i takes i mod N_L
     pick_offset: mi.Float              # a vertex cache's pick offset, uniform per pass
+    noise_key: mi.UInt32               # per pass: keys ratio tracking's numbers (media.py)
     images: StrategyImages | None = None
     connection_scale: mi.Float = None  # 1 / kappa of the pass's stored vertices
     stored: mi.UInt32 = None           # V, the stored light vertices of the pass
@@ -107,6 +111,13 @@ class RenderResult:
     time: float = 0.0
     rays: int = 0
     stats: dict = field(default_factory=dict)
+    aov_names: list = field(default_factory=list)   # the last channels' names (aovs.py)
+
+    @property
+    def channels(self) -> list:
+        """The image's channel names: the film's (``exr.channel_names``), then AOVs'."""
+        from .exr import channel_names
+        return channel_names(self.image.shape[2] - len(self.aov_names)) + self.aov_names
 
     @property
     def strategies(self) -> dict:
@@ -222,6 +233,7 @@ class Renderer:
         # Refuses what bdpt would get wrong (media, unsupported plugins), warns of the rest.
         support.check(scene, self.sensor)
         self.emitters = Emitters(scene)
+        self.media = Media(scene, self.sensor)
         fixed = fixed_budget(self.settings)
         if strategy_images and fixed is None:   # the layers show every BDPT strategy
             fixed = BDPT
@@ -251,7 +263,10 @@ class Renderer:
         self.pilot, self._stride = None, {}
         if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
             self._plan_pilot(max_lanes)
-        self.film = FilmAccumulator(film, coalesce=self.spp >= 4, layers=layers)
+        aov_list = aovs.parse(self.settings.aovs)
+        self.aovs = aovs.AOVs(scene, aov_list) if aov_list else None
+        self.film = FilmAccumulator(film, coalesce=self.spp >= 4, layers=layers,
+                                    aov_names=aovs.channel_names(aov_list))
         self.passes_done = 0
         self.spp_done = 0.0           # samples per pixel rendered (fractional: pixel ranges)
         self.time = 0.0
@@ -354,11 +369,12 @@ class Renderer:
         images = StrategyImages(self.strategies, lanes) if self.strategy_images else None
         return PassContext(
             scene=self.scene, camera=self.camera, settings=self.settings, budget=budget,
-            strategies=strategies, weights=weights, emitters=self.emitters,
+            strategies=strategies, weights=weights, emitters=self.emitters, media=self.media,
             camera_sampler=sampler, light_sampler=self._sampler(index, 1, max(n_light, 1), spp),
             lane=dr.arange(mi.UInt32, lanes), time=rays.ray.time,
             wavelengths=rays.ray.wavelengths, camera_weight=rays.weight,
             light_count=n_light, pick_offset=dr.opaque(mi.Float, _unit(self.seed, index)),
+            noise_key=dr.opaque(mi.UInt32, _mix_seed(self.seed, index, 2) & 0xFFFFFFFF),
             images=images, pixel=rays.pixel,
             moments=MomentSamples(lanes) if moments else None)
 
@@ -387,6 +403,8 @@ class Renderer:
         opaque = self.emitters.environment is not None and not self.settings.hide_emitters
         self.film.put_camera(rays, cam.radiance, cam.hit | opaque,
                              None if ctx.images is None else ctx.images.values, lanes)
+        if self.aovs is not None:
+            self.film.put_aovs(rays, self.aovs.values(rays.ray))
         if store is not None:
             self.film.put_splats(store.splats.items, store.splats.size(), ctx.wavelengths,
                                  lanes / ctx.light_count,
@@ -451,7 +469,7 @@ class Renderer:
     def result(self) -> RenderResult:
         tensor = self.tensor()
         layers = self.film.develop_layers() if self.strategy_images else {}
-        return RenderResult(image=tensor.numpy(), tensor=tensor,
+        return RenderResult(image=tensor.numpy(), tensor=tensor, aov_names=self.film.aov_names,
                             strategy_images={k: v.numpy() for k, v in layers.items() if k[0] != "k"},
                             length_images={k[1]: v.numpy() for k, v in layers.items() if k[0] == "k"},
                             spp=int(self.spp_done + 1e-9), passes=self.passes_done, time=self.time,

@@ -12,6 +12,8 @@ import dataclasses
 import warnings
 from dataclasses import dataclass
 
+from . import aovs
+
 HEURISTICS = ("power", "balance", "uniform", "lafortune")
 # Strategy subsets of the same engine, to show what MIS buys: "pt" = path tracing
 # with next-event estimation (s <= 1, MIS between the two), "lt" = light tracing
@@ -43,7 +45,7 @@ class Param:
             return "true" if self.default else "false"
         if self.name == "memory_budget":
             return "2 GiB"
-        return str(self.default)
+        return str(self.default) if self.default != "" else "none"
 
 
 PARAMS = (
@@ -68,6 +70,10 @@ PARAMS = (
     Param("connections", str, "auto", "Connections per camera vertex: ``all`` (every "
           "vertex of its light subpath), a count M (M vertices drawn from all the "
           "pass's light vertices; 0 = none), or ``auto`` (chosen with light_paths)."),
+    Param("aovs", str, "", "AOVs written beside the image, in Mitsuba's ``aov`` "
+          "syntax: ``\"albedo:albedo,nn:sh_normal,dd:depth\"`` (types: albedo, depth, "
+          "position, uv, geo_normal, sh_normal, dp_du, dp_dv, prim_index, shape_index; "
+          "aovs.py).  Their channels follow the image's."),
     Param("samples_per_pass", int, 0, "Samples per pixel per pass; 0 chooses it so that "
           "a pass fits ``memory_budget``.", minimum=0),
     Param("memory_budget", int, DEFAULT_MEMORY_BUDGET, "Bytes a pass may use for its "
@@ -187,6 +193,7 @@ class Settings:
     strategy_subset: str = PARAM["strategy_subset"].default
     light_paths: object = PARAM["light_paths"].default
     connections: object = PARAM["connections"].default
+    aovs: str = PARAM["aovs"].default
     samples_per_pass: int = PARAM["samples_per_pass"].default
     memory_budget: int = PARAM["memory_budget"].default
 
@@ -201,6 +208,7 @@ class Settings:
             raise ValueError("bdpt: strategy_subset='lt' (light tracing) needs light_image")
         if self.technique is not None:
             self._check_technique()
+        aovs.parse(self.aovs)                  # fail early on a bad list
         forced = self._forced_budget_reason()
         if forced and (self.light_paths != "auto" or self.connections != "auto"):
             raise ValueError("bdpt: light_paths and connections are fixed by %s; leave them "

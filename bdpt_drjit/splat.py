@@ -18,45 +18,55 @@ import drjit as dr
 import mitsuba as mi
 
 from . import mis
-from .surface import eval_adjoint, finite, geometric_cosines, spectrum_nonzero
+from .media import connection_key
+from .surface import Vertex, finite, spectrum_nonzero
 from .vertices import Splat
 
 
-def light_vertex_to_camera(ctx, store, si, bsdf, vertex, sample, active) -> mi.UInt32:
-    """t = 1, s = i + 1: light vertex y_i seen by the camera."""
+def light_vertex_to_camera(ctx, store, v, vertex, sample, active) -> mi.UInt32:
+    """t = 1, s = i + 1: light vertex y_i (``v``, its record ``vertex``) seen by the
+    camera."""
     if not ctx.strategies.light_image:      # no t = 1 strategy (an orthographic camera)
         return mi.UInt32(0)
-    cam = ctx.camera.connect(si.p, sample, active)
-    _, cos_out, ok = geometric_cosines(si, cam.d)
+    cam = ctx.camera.connect(v.p, sample, active)
+    cos_out, ok = v.cosine(cam.d)
     active = cam.valid & ok
-    f, rev_w = eval_adjoint(bsdf, si, si.to_local(cam.d), active)
+    f, rev_w = v.eval_adjoint(cam.d, active)
     contrib = vertex.beta * f * cam.importance * ctx.camera_weight
     traced = active & spectrum_nonzero(contrib)
-    active = traced & ~ctx.scene.ray_test(si.spawn_ray_to(cam.p), traced)
+    tr, _, dens_rev, rays = ctx.media.transmittance(
+        v, cam.p, 1.0, connection_key(ctx, vertex.s - 1, 1), traced)
+    contrib *= tr
+    active = traced & spectrum_nonzero(tr)
     # importance = pdf_w(camera) / d^2, so the camera's area density at y_i is
-    # importance * cos (tech. rep. eq. 46).
-    cam_pdf_a = cam.importance * cos_out
+    # importance * cos (tech. rep. eq. 46), times the density of the camera ray's
+    # distances through media.
+    cam_pdf_a = cam.importance * cos_out * dens_rev
     contrib *= ctx.weights.light_to_camera(vertex.d_vcm, vertex.d_vc, vertex.s - 1, cam_pdf_a, rev_w)
     u_pt, u_lt = (0.0, 0.0) if ctx.moments is None else mis.groups_light_image(
         vertex.d_vcm, vertex.d_vc, vertex.d_end, vertex.s == 2, cam_pdf_a, rev_w)
     store.splats.append(Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=vertex.s,
                               lane=ctx.lane, u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt)), active)
-    return dr.select(traced, 1, 0)
+    return rays
 
 
-def emitter_to_camera(ctx, store, es, sample, active) -> mi.UInt32:
+def emitter_to_camera(ctx, store, es, medium, sample, active) -> mi.UInt32:
     """(1,1): the emitter point y_0 of the light subpath seen by the camera.
 
     Delta-position emitters are skipped, as Mitsuba's path tracer and ptracer skip
     them (a camera ray never hits a point light; through a thin lens (1,1) could
     connect one, and ptracer leaves that out too).
     So are environments: y_0 at infinity is seen by camera rays that escape (s = 0).
+    ``medium``: the medium the light subpath starts in (media.Media.start_medium).
     """
     if not ctx.strategies.light_image:
         return mi.UInt32(0)
     active = active & ~es.delta_pos & ~es.infinite
-    it = dr.zeros(mi.Interaction3f)
-    it.p, it.n, it.time, it.wavelengths = es.p, es.n, ctx.time, ctx.wavelengths
+    si = dr.zeros(mi.SurfaceInteraction3f)
+    si.p, si.n, si.time, si.wavelengths = es.p, es.n, ctx.time, ctx.wavelengths
+    if ctx.media.present:            # (the medium toward the camera: Vertex.medium_toward)
+        si.shape = es.emitter.get_shape()
+    y0 = Vertex(si, None, medium, mi.Bool(False), ctx.media.present)
     cam = ctx.camera.connect(es.p, sample, active)
     active = cam.valid
     le = ctx.emitters.emitted(es.emitter, es.p, es.n, es.uv, cam.d, mi.Bool(False),
@@ -64,14 +74,16 @@ def emitter_to_camera(ctx, store, es, sample, active) -> mi.UInt32:
     cos_e = dr.abs(dr.dot(es.n, cam.d))
     contrib = le * cos_e / es.pos_pdf_a * cam.importance * ctx.camera_weight
     traced = active & spectrum_nonzero(contrib)
-    active = traced & ~ctx.scene.ray_test(it.spawn_ray_to(cam.p), traced)
-    cam_pdf_a = cam.importance * cos_e
+    tr, _, dens_rev, rays = ctx.media.transmittance(y0, cam.p, 1.0,
+                                                    connection_key(ctx, 0, 1), traced)
+    contrib *= tr
+    active = traced & spectrum_nonzero(tr)
+    cam_pdf_a = cam.importance * cos_e * dens_rev
     contrib *= ctx.weights.emitter_to_camera(cam_pdf_a, es.pos_pdf_a)
     rival = cam_pdf_a / es.pos_pdf_a                 # the only rival, (0,2), is path tracing
     record = Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=mi.UInt32(1),
                    lane=ctx.lane, u_pt=mi.Float(rival / (1.0 + rival)),
                    u_lt=mi.Float(1.0 / (1.0 + rival)))
-    rays = dr.select(traced, 1, 0)
     # Outside a loop an append's mask is evaluated at once: evaluate everything in one
     # kernel first, or the emission sample is computed twice (two large kernels).
     dr.eval(record, active, rays, es)

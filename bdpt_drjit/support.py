@@ -5,8 +5,9 @@
 lists every verdict of the same ``inspect``, so that info and render cannot disagree.
 
 A verdict is *supported*, *refused* with a reason the user can act on (content that
-bdpt would otherwise ignore or get wrong: media, sensors other than a pinhole,
-emitters it has no densities for), or *supported with a warning* (the image is
+bdpt would otherwise ignore or get wrong: sensors it has no camera model for,
+emitters it has no densities for, media it has no phase function model for), or
+*supported with a warning* (the image is
 right but differs from what a user may expect of Mitsuba's ``path``).  README's
 "What is supported" says the same for every plugin Mitsuba 3.9.1 ships.
 """
@@ -51,13 +52,19 @@ _XML_NAMES = {
     "LinearRetarder": "retarder", "CircularPolarizer": "circular",
     "MeasuredBSDF": "measured", "MeasuredPolarized": "measured_polarized",
     "PolarizedPlastic": "pplastic",
-    # media
+    # media and phase functions
     "HomogeneousMedium": "homogeneous", "HeterogeneousMedium": "heterogeneous",
+    "IsotropicPhaseFunction": "isotropic", "HGPhaseFunction": "hg",
+    "RayleighPhaseFunction": "rayleigh", "TabulatedPhaseFunction": "tabphase",
+    "BlendPhaseFunction": "blendphase", "SGGXPhaseFunction": "sggx",
 }
 
-_MEDIA = ("bdpt has no participating media yet: it would render the scene as if the "
-          "medium were not there (a fog cube in the Cornell box came out 25% off "
-          "Mitsuba's volpath); render it with volpath, or remove the medium")
+# Media and phase functions media.py handles (Mitsuba class names).  The phase
+# functions are symmetric functions of the angle, so a light subpath scatters with
+# the same value and density as a camera subpath (the adjoint of surface.Vertex).
+SUPPORTED_MEDIA = ("HomogeneousMedium", "HeterogeneousMedium")
+SUPPORTED_PHASES = ("IsotropicPhaseFunction", "HGPhaseFunction", "RayleighPhaseFunction",
+                    "TabulatedPhaseFunction", "BlendPhaseFunction")
 # The cameras camera.py models exactly (Mitsuba class names).
 SUPPORTED_SENSORS = ("PerspectiveCamera", "ThinLensCamera", "OrthographicCamera")
 _FILM = ("bdpt's film stage puts samples and light-image splats as hdrfilm lays them out "
@@ -110,10 +117,12 @@ def describe(obj) -> str:
 
 def inspect(scene: mi.Scene, sensor: mi.Sensor) -> list:
     """Every verdict about ``scene`` rendered through ``sensor``."""
+    from .media import scene_media
+    media = scene_media(scene, sensor)
     out = _sensor_verdicts(sensor) + _emitter_verdicts(scene)
     for shape in all_shapes(scene):
-        out += _shape_verdicts(shape)
-    return out
+        out += _shape_verdicts(shape, bool(media))
+    return out + _media_verdicts(scene, sensor, media)
 
 
 def check(scene: mi.Scene, sensor: mi.Sensor) -> list:
@@ -153,9 +162,6 @@ def _sensor_verdicts(sensor) -> list:
     name = describe(sensor)
     refusal = sensor_refusal(sensor)
     out = [_refused("sensor", sensor, name, refusal) if refusal else Verdict("sensor", name, SUPPORTED)]
-    medium = sensor.get_medium()
-    if medium is not None:
-        out.append(_refused("medium", medium, "%s, the sensor's medium" % describe(medium), _MEDIA))
     film = sensor.film()
     name = "%s with %s filter, %s sampler" % (
         describe(film), film.rfilter().class_name(), sensor.sampler().class_name())
@@ -175,9 +181,6 @@ def _emitter_verdicts(scene) -> list:
     out = []
     for e in emitters:
         out.append(_emitter_verdict(e))
-        if e.get_medium() is not None:
-            out.append(_refused("medium", e.get_medium(), "%s, the medium of emitter %s"
-                                % (describe(e.get_medium()), describe(e)), _MEDIA))
     return out
 
 
@@ -229,17 +232,14 @@ def _projector_refusal(e) -> str | None:
 
 
 # -- shapes ----------------------------------------------------------------------------
-def _shape_verdicts(shape) -> list:
+def _shape_verdicts(shape, media: bool) -> list:
     name = describe(shape)
     out = []
-    for medium, side in ((shape.interior_medium(), "interior"), (shape.exterior_medium(), "exterior")):
-        if medium is not None:
-            out.append(_refused("medium", medium, "%s, the %s of %s" % (describe(medium), side, name),
-                                _MEDIA))
     bsdf = shape.bsdf()
     if bsdf is not None and shape.class_name() not in ("Instance", "ShapeGroupPlugin"):
         name += " with " + describe(bsdf)
-        if mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null):
+        if mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null) and not (
+                media and bsdf.class_name() in ("Null", "NullBSDF")):
             out.append(Verdict("shape", name, WARNING, NULL_LOBE))
     if shape.is_mesh():
         fraction = reversed_normals(shape)
@@ -253,11 +253,59 @@ def _shape_verdicts(shape) -> list:
 NULL_LOBE = ("its BSDF lets light pass through (a null lobe: null, mask, thindielectric, "
              "hair, polarizers): the image is right, but each pass counts as a bounce "
              "toward max_depth, as in Mitsuba's path (volpath does not count it), and "
-             "no connection crosses it (more noise)")
+             "no connection crosses it (more noise); in a scene with media a 'null' BSDF "
+             "is a medium boundary instead, crossed by connections and not counted")
 REVERSED_NORMALS = ("its vertex normals oppose its triangle winding on %.0f%% of its area: "
                     "where shading and geometric normals disagree, bdpt gives light zero "
                     "weight (as Mitsuba's ptracer does; its path does not), so this mesh "
                     "renders much darker than in path; flip its winding or its normals")
+
+
+# -- media ---------------------------------------------------------------------------
+def _media_verdicts(scene, sensor, media: list) -> list:
+    out = []
+    for medium in media:
+        name = "%s with %s phase function" % (describe(medium), describe(medium.phase_function()))
+        if medium.class_name() not in SUPPORTED_MEDIA:
+            out.append(_refused("medium", medium, name, "bdpt has no free-flight model for it "
+                                "(it renders 'homogeneous' and 'heterogeneous'); use volpath"))
+        elif medium.phase_function().class_name() not in SUPPORTED_PHASES:
+            out.append(_refused("medium", medium.phase_function(), name,
+                                "bdpt's light subpaths need a phase function that is "
+                                "symmetric in its two directions (isotropic, hg, rayleigh, "
+                                "tabphase, blendphase of those); use volpath"))
+        else:
+            out.append(Verdict("medium", name, SUPPORTED, MEDIUM_NOTE))
+    if media:
+        out += _medium_layout_verdicts(scene, sensor)
+    return out
+
+
+MEDIUM_NOTE = ("volumetric BDPT: medium vertices take part in every strategy; homogeneous "
+               "media weight them with exact distance densities, heterogeneous ones leave "
+               "distance densities out of the weights (media.py)")
+
+
+def _medium_layout_verdicts(scene, sensor) -> list:
+    """The camera must sit in its sensor's medium, and light from infinity cannot reach
+    a scene inside an unbounded medium."""
+    from .media import Media
+    try:
+        media = Media(scene, sensor)
+    except ValueError as e:
+        return [_refused("sensor", sensor, describe(sensor), str(e).replace("bdpt: ", ""))]
+    if media.unbounded is None:
+        return []
+    out = []
+    for e in scene.emitters():
+        if e.is_environment() or e.class_name() == "DirectionalEmitter":
+            out.append(_refused("emitter", e, describe(e),
+                                "it lies at infinity, and the medium %s around the camera has "
+                                "no boundary: no light from infinity crosses it (volpath lets "
+                                "next-event rays through a finite distance and so disagrees "
+                                "with its own escaping rays); bound the medium with a shape"
+                                % describe(media.unbounded)))
+    return out
 
 
 def reversed_normals(mesh) -> float:

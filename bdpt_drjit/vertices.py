@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from .surface import SurfaceRecord
+from .surface import VertexRecord
 
 NONE = 0xFFFFFFFF                    # "no vertex" in first/next
 
@@ -31,7 +31,7 @@ NONE = 0xFFFFFFFF                    # "no vertex" in first/next
 @dataclass
 class LightVertex:
     """Light vertex y_{s-1} (s >= 2) as connections need it."""
-    surface: SurfaceRecord
+    record: VertexRecord             # the vertex (a surface point or a medium point)
     beta: mi.Spectrum                # throughput from y_0 to here (Russian roulette included)
     d_vcm: mi.Float                  # MIS chain state (mis.py)
     d_vc: mi.Float
@@ -40,9 +40,10 @@ class LightVertex:
     next: mi.UInt32                  # the lane's next stored vertex, or NONE
 
 
-# p, n, uv, sh_frame, dp_du, dp_dv, wi, shape, instance, prim_index; beta, d_vcm, d_vc,
-# d_end, s, next (single-precision RGB; spectral variants store 4 wavelengths' worth)
-RECORD_BYTES = 4 * (3 + 3 + 2 + 9 + 3 + 3 + 3 + 1 + 1 + 1 + 3 + 1 + 1 + 1 + 1 + 1)
+# p, n, uv, sh_frame, dp_du, dp_dv, wi, shape, instance, prim_index, medium, in_medium;
+# beta, d_vcm, d_vc, d_end, s, next (single-precision RGB; spectral variants store 4
+# wavelengths' worth)
+RECORD_BYTES = 4 * (3 + 3 + 2 + 9 + 3 + 3 + 3 + 1 + 1 + 1 + 1 + 1 + 3 + 1 + 1 + 1 + 1 + 1)
 
 
 @dataclass

@@ -15,7 +15,10 @@ compacting a wavefront of dead lanes bought, with no kernel per depth.
 
 Loop state is ``PathState``; every random number of a depth is drawn at the top
 of the depth into ``DepthSamples`` (pbrt-v4's ``RaySamples``), so which of them a
-strategy uses never shifts the others.
+strategy uses never shifts the others.  In a scene with media, the ray of a depth
+then runs through free flights to its vertex (media.Media.next_vertex, a nested
+loop that draws each segment's numbers after the depth's), and the vertex may be a
+point in a medium: strategies see a surface.Vertex either way.
 """
 from __future__ import annotations
 
@@ -25,12 +28,8 @@ import drjit as dr
 import mitsuba as mi
 
 from . import connect, mis, splat
-from .surface import (SurfaceRecord, adjoint_correction, eval_adjoint, geometric_cosines,
-                      reverse_pdf, spectrum_nonzero)
+from .surface import IMPORTANCE, RADIANCE, Vertex, VertexRecord, adjoint_correction, spectrum_nonzero
 from .vertices import NONE, LightVertex
-
-RADIANCE = mi.BSDFContext(mi.TransportMode.Radiance)
-IMPORTANCE = mi.BSDFContext(mi.TransportMode.Importance)
 
 
 @dataclass
@@ -67,17 +66,23 @@ class PathState:
     hit: mi.Bool            # camera walk: the camera ray hit a surface (film alpha)
     last_item: mi.UInt32    # light walk: this lane's last stored vertex (or NONE)
     slot: mi.UInt32         # camera walk, pilot passes: moment samples recorded
+    medium: mi.MediumPtr = None     # media: the medium the ray travels in
+    sigma_prev: mi.Spectrum = None  # media: sigma_t at the ray's origin vertex (Vertex.sigma_t)
 
     @staticmethod
-    def start(ray, beta, d_vcm, d_vc, prev, active) -> "PathState":
+    def start(ray, beta, d_vcm, d_vc, prev, active, medium=None) -> "PathState":
+        """``medium``: the medium the first ray travels in (None: a scene without media)."""
         n = dr.width(ray.o)
+        media = medium is not None
         return PathState(ray=mi.Ray3f(ray), beta=mi.Spectrum(beta), rr_beta=dr.ones(mi.Spectrum, n),
                          eta=dr.ones(mi.Float, n), d_vcm=mi.Float(d_vcm), d_vc=mi.Float(d_vc),
                          d_end=mi.Float(d_vcm),
                          prev=prev, depth=dr.ones(mi.UInt32, n), active=mi.Bool(active),
                          rays=dr.zeros(mi.UInt32, n), lw=dr.ones(mi.Float, n),
                          radiance=dr.zeros(mi.Spectrum, n), hit=dr.zeros(mi.Bool, n),
-                         last_item=dr.full(mi.UInt32, NONE, n), slot=dr.zeros(mi.UInt32, n))
+                         last_item=dr.full(mi.UInt32, NONE, n), slot=dr.zeros(mi.UInt32, n),
+                         medium=mi.MediumPtr(medium) if media else None,
+                         sigma_prev=dr.ones(mi.Spectrum, n) if media else None)
 
 
 def _point(p, n, time, wavelengths) -> mi.Interaction3f:
@@ -87,9 +92,9 @@ def _point(p, n, time, wavelengths) -> mi.Interaction3f:
 
 
 def _loop(label: str, state: PathState, sampler, step):
-    """Run ``step(state, samples)`` for every depth while some lane is active."""
+    """Run ``step(state, samples, sampler)`` for every depth while some lane is active."""
     def body(state, sampler):
-        step(state, DepthSamples.draw(sampler))
+        step(state, DepthSamples.draw(sampler), sampler)
         return state, sampler
     state, sampler = dr.while_loop((state, sampler), lambda state, sampler: state.active,
                                    body, label=label)
@@ -103,40 +108,41 @@ def trace_light_subpaths(ctx, store) -> mi.UInt32:
     es, state = _light_start(ctx, store)
     max_i = ctx.strategies.max_light_vertices()
 
-    def step(state: PathState, u: DepthSamples):
-        si, bsdf, _ = _intersect(ctx, state)
+    def step(state: PathState, u: DepthSamples, sampler):
+        flight, v = _next_vertex(ctx, state, sampler)
         s = state.depth + 1                # strategies ending the light subpath at y_i
-        _light_vertex_mis(ctx, es, state, si)
-        connectible = state.active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        vertex = LightVertex(surface=SurfaceRecord.of(si), beta=mi.Spectrum(state.beta),
+        _light_vertex_mis(ctx, es, state, v, flight)
+        connectible = state.active & v.smooth
+        vertex = LightVertex(record=VertexRecord.of(v), beta=mi.Spectrum(state.beta),
                              d_vcm=state.d_vcm, d_vc=state.d_vc, d_end=state.d_end, s=s,
                              next=mi.UInt32(NONE))
         state.rays += splat.light_vertex_to_camera(
-            ctx, store, si, bsdf, vertex, u.endpoint, connectible & ctx.strategies.enabled(s, 1))
+            ctx, store, v, vertex, u.endpoint, connectible & ctx.strategies.enabled(s, 1))
         state.last_item = store.add_vertex(vertex, ctx.lane, state.last_item,
                                            connectible & ctx.strategies.stores(s))
         goes_on = state.active if max_i is None else state.active & (state.depth < max_i)
-        _scatter(ctx, state, si, bsdf, u, goes_on, importance=True)
+        _scatter(ctx, state, v, u, goes_on, importance=True)
 
     state = _loop("light subpaths", state, ctx.light_sampler, step)
     return state.rays
 
 
-def _light_vertex_mis(ctx, es, state: PathState, si):
+def _light_vertex_mis(ctx, es, state: PathState, v, flight):
     """The MIS chains at y_i, in area measure.  At y_1 they also take the density with
     which next-event estimation from y_1 would have picked y_0 (mis.first_light_vertex)."""
-    cos_in = dr.abs(dr.dot(si.n, state.ray.d))
-    dist2 = dr.squared_norm(si.p - state.prev.p)
+    cos_in, _ = v.cosine(state.ray.d)
+    dist2 = dr.squared_norm(v.p - state.prev.p)
     first = state.depth == 1
-    nee_pdf_a = ctx.emitters.nee_pdf_a(si, es.p, es.n, es.uv, es.emitter, es.delta_pos,
+    nee_pdf_a = ctx.emitters.nee_pdf_a(v.si, es.p, es.n, es.uv, es.emitter, es.delta_pos,
                                        ctx.time, state.active & first & ~es.infinite)
-    nee_pdf_w = ctx.emitters.environment_nee_pdf_w(es.emitter, si, -state.ray.d,
+    nee_pdf_w = ctx.emitters.environment_nee_pdf_w(es.emitter, v.si, -state.ray.d,
                                                    state.active & first & es.infinite)
+    dens = flight.dens_fwd, flight.dens_rev
     d_vcm1, d_vc1 = ctx.weights.first_light_vertex(state.d_vc, nee_pdf_a, nee_pdf_w, es.infinite,
-                                                   es.emission_pdf, dist2, cos_in)
-    d_vcm, d_vc = ctx.weights.after_hit(state.d_vcm, state.d_vc, dist2, cos_in)
+                                                   es.emission_pdf, dist2, cos_in, *dens)
+    d_vcm, d_vc = ctx.weights.after_hit(state.d_vcm, state.d_vc, dist2, cos_in, *dens)
     if ctx.moments is not None:
-        state.d_end = mis.end_after_hit(state.d_end, dist2, cos_in, False)
+        state.d_end = mis.end_after_hit(state.d_end, dist2, cos_in, False, *dens)
     state.d_vcm = dr.select(first, d_vcm1, d_vcm)
     state.d_vc = dr.select(first, d_vc1, d_vc)
 
@@ -147,12 +153,14 @@ def _light_start(ctx, store):
     es = ctx.emitters.sample_emission(ctx.time, ctx.wavelengths, sampler.next_1d(),
                                       sampler.next_2d(), sampler.next_2d())
     u_lens = sampler.next_2d()        # drawn whether or not (1,1) is on
-    rays = splat.emitter_to_camera(ctx, store, es, u_lens, es.valid & ctx.strategies.enabled(1, 1))
+    medium = ctx.media.start_medium(es, ctx.time, es.valid) if ctx.media.present else None
+    rays = splat.emitter_to_camera(ctx, store, es, medium, u_lens,
+                                   es.valid & ctx.strategies.enabled(1, 1))
     y0 = _point(es.p, es.n, ctx.time, ctx.wavelengths)
     d_vc = ctx.weights.light_start(es.emission_pdf, es.cos_emit, es.delta_pos | es.delta_dir)
     max_i = ctx.strategies.max_light_vertices()
     active = es.valid & (max_i is None or max_i >= 1)
-    state = PathState.start(y0.spawn_ray(es.d), es.beta, 0.0, d_vc, y0, active)
+    state = PathState.start(y0.spawn_ray(es.d), es.beta, 0.0, d_vc, y0, active, medium)
     state.rays += rays
     return es, state
 
@@ -165,60 +173,72 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
     d_vcm, d_vc = ctx.weights.camera_start(rays.pdf_w)
     # z_0: the pinhole, the lane's lens point, or its point on an orthographic film plane
     z0 = _point(rays.origin, mi.Normal3f(0.0), ctx.time, ctx.wavelengths)
-    state = PathState.start(rays.ray, rays.weight, d_vcm, d_vc, z0, max_j is None or max_j >= 1)
+    state = PathState.start(rays.ray, rays.weight, d_vcm, d_vc, z0, max_j is None or max_j >= 1,
+                            ctx.media.camera_start() if ctx.media.present else None)
 
-    def step(state: PathState, u: DepthSamples):
+    def step(state: PathState, u: DepthSamples, sampler):
         t = state.depth + 1
-        si, bsdf, escaped = _intersect(ctx, state)
-        state.hit |= (state.depth == 1) & si.is_valid()
+        flight, v = _next_vertex(ctx, state, sampler)
+        state.hit |= (state.depth == 1) & (flight.surface | flight.medium)
         if ctx.emitters.environment is not None:
-            _add(ctx, state, 0, t, connect.environment_hit(ctx, state, escaped))
-        cos_in = dr.abs(dr.dot(si.n, state.ray.d))
-        dist2 = dr.squared_norm(si.p - state.prev.p)
-        state.d_vcm, state.d_vc = ctx.weights.after_hit(state.d_vcm, state.d_vc, dist2, cos_in)
-        if ctx.moments is not None:
-            state.d_end = mis.end_after_hit(state.d_end, dist2, cos_in, state.depth == 1)
-        connectible = state.active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+            _add(ctx, state, 0, t, connect.environment_hit(ctx, state, flight))
+        _camera_vertex_mis(ctx, state, v, flight)
+        connectible = state.active & v.smooth
         if ctx.emitters.count:
-            _add(ctx, state, 0, t, connect.emission_hit(ctx, state, si))
+            _add(ctx, state, 0, t, connect.emission_hit(ctx, state, v))
             _add(ctx, state, 1, t, *connect.next_event(
-                ctx, state, si, bsdf, u.endpoint, connectible & ctx.strategies.enabled(1, t)))
+                ctx, state, v, u.endpoint, connectible & ctx.strategies.enabled(1, t)))
         if store is not None:
-            state.radiance, rays = connect.stored_vertices(ctx, store, state, si, bsdf, connectible)
+            state.radiance, rays = connect.stored_vertices(ctx, store, state, v, connectible)
             state.rays += rays
         goes_on = state.active if max_j is None else state.active & (state.depth < max_j)
-        delta = _scatter(ctx, state, si, bsdf, u, goes_on, importance=False)
+        delta = _scatter(ctx, state, v, u, goes_on, importance=False)
         if ctx.weights.lafortune:
-            state.lw *= ctx.weights.specularity(bsdf.flags(), delta)
+            state.lw *= ctx.weights.specularity(v.bsdf.flags(), delta)
 
     return _loop("camera subpaths", state, ctx.camera_sampler, step)
 
 
+def _camera_vertex_mis(ctx, state: PathState, v, flight):
+    """The MIS chains at z_j, in area measure."""
+    cos_in, _ = v.cosine(state.ray.d)
+    dist2 = dr.squared_norm(v.p - state.prev.p)
+    dens = flight.dens_fwd, flight.dens_rev
+    state.d_vcm, state.d_vc = ctx.weights.after_hit(state.d_vcm, state.d_vc, dist2, cos_in, *dens)
+    if ctx.moments is not None:
+        state.d_end = mis.end_after_hit(state.d_end, dist2, cos_in, state.depth == 1, *dens)
+
+
 # -- shared steps ---------------------------------------------------------------------
-def _intersect(ctx, state: PathState):
-    """The vertex the ray hits; lanes whose ray escapes stop (returned: ``escaped``)."""
-    state.rays += dr.select(state.active, 1, 0)
-    si = ctx.scene.ray_intersect(state.ray, mi.RayFlags.All, False, state.active)
-    escaped = state.active & ~si.is_valid()
-    state.active &= si.is_valid()
-    return si, si.bsdf(), escaped
+def _next_vertex(ctx, state: PathState, sampler):
+    """The vertex the ray reaches (media: past null collisions and boundaries, with the
+    free flights' weight); lanes whose ray escapes stop (``flight.escaped``)."""
+    flight = ctx.media.next_vertex(state, sampler, state.active)
+    state.rays += flight.rays
+    state.active = flight.surface | flight.medium
+    if not ctx.media.present:
+        return flight, Vertex(flight.si, flight.si.bsdf())
+    state.beta = mi.Spectrum(state.beta * flight.weight)
+    state.rr_beta = mi.Spectrum(state.rr_beta * flight.weight)
+    v = Vertex.in_walk(flight.si, flight.mei, flight.medium, state.medium, True)
+    state.sigma_prev = v.sigma_t()       # for the next edge's reverse density
+    return flight, v
 
 
-def _add(ctx, state: PathState, s, t, value, traced=None):
-    """Strategy (s, t)'s contribution to this camera sample (and its shadow ray)."""
+def _add(ctx, state: PathState, s, t, value, rays=None):
+    """Strategy (s, t)'s contribution to this camera sample (and its shadow rays)."""
     state.radiance = ctx.strategies.add(ctx.images, state.radiance, ctx.lane, s, t, value)
-    if traced is not None:
-        state.rays += dr.select(traced, 1, 0)
+    if rays is not None:
+        state.rays += rays
 
 
-def _scatter(ctx, state: PathState, si, bsdf, u: DepthSamples, active, importance: bool):
-    """Sample the BSDF at the current vertex, extend the subpath by one ray, update
-    the MIS chains and apply Russian roulette; returns whether a delta lobe was
-    sampled."""
+def _scatter(ctx, state: PathState, v: Vertex, u: DepthSamples, active, importance: bool):
+    """Sample the BSDF (or phase function) at the current vertex, extend the subpath by
+    one ray, update the MIS chains and apply Russian roulette; returns whether a delta
+    lobe was sampled."""
     mode = IMPORTANCE if importance else RADIANCE
-    bs, weight = bsdf.sample(mode, si, u.lobe, u.direction, active)
-    wo = si.to_world(bs.wo)
-    _, cos_out, ok = geometric_cosines(si, wo)
+    bs, weight, wo = v.sample(mode, u.lobe, u.direction, active)
+    cos_out, ok = v.cosine(wo)
     active = active & ok & (bs.pdf > 0)
     delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
     if importance:
@@ -230,12 +250,11 @@ def _scatter(ctx, state: PathState, si, bsdf, u: DepthSamples, active, importanc
         # returns weight 0 with bs.wo and the sampled lobe's pdf set, while eval sees
         # the other lobe there; counting such samples made light tracing through rough
         # glass 20-60% too bright (tests/test_rough_glass.py).
-        f_adj, pdf_rev_w = eval_adjoint(bsdf, si, bs.wo, active)
+        f_adj, pdf_rev_w = v.eval_adjoint(wo, active)
         smooth = dr.select(spectrum_nonzero(weight), f_adj * dr.rcp(bs.pdf), 0.0)
-        weight = dr.select(delta, weight * adjoint_correction(si, wo), smooth)
+        weight = dr.select(delta, weight * adjoint_correction(v.si, wo), smooth)
     else:
-        pdf_rev_w = (reverse_pdf(bsdf, IMPORTANCE, si, bs.wo, active) if ctx.weights.chains
-                     else mi.Float(0.0))
+        pdf_rev_w = v.reverse_pdf(wo, active) if ctx.weights.chains else mi.Float(0.0)
     # Lanes that stop keep garbage from here on; nothing reads it.
     if ctx.moments is not None:
         state.d_end = mis.end_after_scatter(state.d_end, state.d_vcm, state.d_vc, cos_out, bs.pdf,
@@ -245,8 +264,10 @@ def _scatter(ctx, state: PathState, si, bsdf, u: DepthSamples, active, importanc
     state.beta = mi.Spectrum(state.beta * weight)       # (spectral arithmetic may
     state.rr_beta = mi.Spectrum(state.rr_beta * weight) # give a plain Array4f)
     state.eta *= bs.eta
-    state.prev = _point(si.p, si.n, si.time, si.wavelengths)
-    state.ray = si.spawn_ray(wo)
+    state.prev = _point(v.p, v.si.n, v.si.time, v.si.wavelengths)
+    state.ray = v.spawn_ray(wo)
+    if ctx.media.present:
+        state.medium = v.medium_toward(wo)
     state.depth += 1
     state.active = _roulette(ctx, state, u.roulette, active, importance)
     return delta

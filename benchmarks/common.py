@@ -71,9 +71,11 @@ BDPT_LT = Method("bdpt-lt", "BDPT engine, LT strategies only", "bdpt",
                  (("mis", "power"), ("strategy_subset", "lt")), "C8", ":")
 PATH = Method("path", "Mitsuba path", "mitsuba", (("type", "path"),), "C3", "-")
 PTRACER = Method("ptracer", "Mitsuba ptracer", "mitsuba", (("type", "ptracer"),), "C5", "-.")
+VOLPATH = Method("volpath", "Mitsuba volpath", "mitsuba", (("type", "volpath"),), "C9", "-")
+VOLPATHMIS = Method("volpathmis", "Mitsuba volpathmis", "mitsuba", (("type", "volpathmis"),), "C8", "--")
 
 METHODS = {m.name: m for m in (BDPT_AUTO, BDPT_POWER, BDPT_BALANCE, BDPT_UNIFORM, BDPT_LAFORTUNE, BDPT_NO_LT,
-                                BDPT_PT, BDPT_LT, PATH, PTRACER)}
+                                BDPT_PT, BDPT_LT, PATH, PTRACER, VOLPATH, VOLPATHMIS)}
 
 
 def bdpt_settings_fields() -> set:

@@ -35,6 +35,7 @@ class BenchScene:
     external: bool = False
     exr: Path | None = None      # shipped reference (external scenes)
     exr_size: tuple[int, int] | None = None   # (width, height) of the EXR
+    baseline: str = "path"       # the method equal-time ratios are taken against
 
     def available(self) -> tuple[bool, str]:
         if not self.file.exists():
@@ -142,7 +143,36 @@ SCENE_LIST = [
               "Bitterli's Cornell box", (1024, 1024)),
 ]
 
-SCENES = {s.name: s for s in SCENE_LIST}
+# Participating media (not in the default modes: ``--scenes`` names them); baseline
+# Mitsuba's volpath, since path and ptracer have no media.
+MEDIA_SCENE_LIST = [
+    BenchScene(name="god-rays", file=ROOT / "scenes" / "media" / "god-rays.xml", max_depth=8,
+               reference="volpath", baseline="volpath",
+               expected_failure="volpath's next-event estimation draws the sheet of light from "
+               "the slit well; the fog the sheet lights (multiple scattering) is noisy for it.",
+               effect="Fog-filled room, small light shining through a slit (god rays)"),
+    BenchScene(name="fog-cube", file=ROOT / "scenes" / "media" / "fog-cube.xml", max_depth=8,
+               reference="volpath", baseline="volpath",
+               expected_failure="None: volpath converges; light subpaths add little.",
+               effect="Cornell box with a chromatic homogeneous fog cube"),
+    BenchScene(name="cloud", file=ROOT / "scenes" / "media" / "cloud.xml", max_depth=8,
+               reference="volpath", baseline="volpath",
+               expected_failure="None: volpath converges; heterogeneous media leave distance "
+               "densities out of bdpt's weights.",
+               effect="Heterogeneous cloud under a sky and a sphere light"),
+    BenchScene(name="volumetric-caustic-point", file=ROOT / "scenes" / "media" / "volumetric-caustic.xml",
+               max_depth=8, reference="bdpt-power", baseline="volpath",
+               expected_failure="volpath cannot render the cone at all (a camera path would have "
+               "to hit a point light through glass): its error stops falling at that bias.",
+               effect="Point light focused by a glass ball into fog"),
+    BenchScene(name="volumetric-caustic", file=ROOT / "scenes" / "media" / "volumetric-caustic-sphere.xml",
+               max_depth=8, reference="bdpt-power", baseline="volpath",
+               expected_failure="volpath renders the cone of light a glass ball focuses into fog "
+               "with fireflies: a camera path must hit the small light through the ball.",
+               effect="Sphere light focused by a glass ball into fog (mitsuba3 #181)"),
+]
+
+SCENES = {s.name: s for s in SCENE_LIST + MEDIA_SCENE_LIST}
 
 # Scenes for the strategy pyramid (per-(s,t) contact sheet).
 PYRAMID_SCENES = ("veach-bidir", "glass-caustic-area")

@@ -153,7 +153,7 @@ def error_for_scene(spec, cfg: Config, methods, refs_dir: Path, progress) -> dic
             target_time = max(target_time or 0.0, max(r["time"] for r in mine))
     estimate_mitsuba_rays(scene, spec, methods, records)
     return {"scene": spec.name, "width": w, "height": h, "max_depth": spec.max_depth,
-            "reference": ref_meta, "records": records, "expected_failure": spec.expected_failure,
+            "baseline": spec.baseline, "reference": ref_meta, "records": records, "expected_failure": spec.expected_failure,
             "ref_mean": float(ref.mean())}
 
 
@@ -204,10 +204,11 @@ def level_record(spec, scene, ref, m, cfg: Config, spp: int, i: int) -> dict:
 
 
 def estimate_mitsuba_rays(scene, spec, methods, records) -> None:
-    """Mitsuba's rays per sample (a probe), for the equal-ray comparison."""
+    """Mitsuba's rays per sample (a probe), for the equal-ray comparison; the probe
+    replays path and ptracer only (volpath's free flights are not modelled)."""
     est = {}
     for m in methods:
-        if m.engine == "mitsuba":
+        if m.engine == "mitsuba" and m.opts["type"] in ("path", "ptracer"):
             est[m.name] = C.estimate_mitsuba_rays(scene, m.opts["type"], spec.max_depth, spp=2)
     for r in records:
         if r["rays_per_sample"] is None and r["method"] in est:
@@ -262,8 +263,9 @@ def equal_comparison(result, key="time", baseline="path", budget_method="bdpt-po
 
 def compare(r: dict) -> None:
     """A scene result's equal-time and equal-ray comparisons."""
-    r["equal_time"] = equal_comparison(r, "time")
-    r["equal_rays"] = equal_comparison(r, "rays")
+    base = r.get("baseline", "path")
+    r["equal_time"] = equal_comparison(r, "time", baseline=base)
+    r["equal_rays"] = equal_comparison(r, "rays", baseline=base)
 
 
 # -- throughput & scaling ------------------------------------------------------------------------------

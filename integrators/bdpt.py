@@ -26,13 +26,27 @@ Cameras:
   starts at its own point on the film plane.  ``strategy_subset`` ``lt`` and the
   techniques (s,1) are refused.
 
+Participating media (``homogeneous``, ``heterogeneous``; the phase functions
+``isotropic``, ``hg``, ``rayleigh``, ``tabphase``, ``blendphase``): medium vertices on
+both subpaths, drawn by free flights as Mitsuba's ``volpath`` draws them (null
+collisions in heterogeneous media), take part in every strategy: next-event
+estimation and the light image from a point in fog (the volumetric caustics that
+``volpath`` cannot render), connections between any mix of surface and medium
+vertices.  Every connection carries its transmittance (closed form; ratio tracking in
+heterogeneous media); ``null`` surfaces are medium boundaries, not vertices, and
+``max_depth`` counts scattering vertices as ``volpath`` does.  Homogeneous media enter
+the MIS weights with exact distance densities; heterogeneous ones leave them out (the
+weights must be a function of the path).  The camera's medium is the sensor's
+``medium`` (checked against where its rays start); light subpaths start in the medium
+an emitter declares, or that its shape's media say, or that surrounds it.
+
 {params}
 
 Supported: the ``perspective``, ``thinlens`` and ``orthographic`` sensors; ``area``,
 ``point``, ``spot``, ``projector``, ``constant``, ``envmap``, ``sunsky`` and
-``directional`` emitters; every Mitsuba BSDF and shape; ``hdrfilm``.  Participating
-media, other sensors and emitters (``radiancemeter``, ``directionalarea``, ...) and
-``specfilm`` raise an error naming the plugin (``bdpt_drjit/support.py``; ``bdpt info
+``directional`` emitters; every Mitsuba BSDF and shape; the media above; ``hdrfilm``.
+Other sensors, emitters and media (``radiancemeter``, ``directionalarea``, the ``sggx``
+phase function, ...) and ``specfilm`` raise an error naming the plugin (``bdpt_drjit/support.py``; ``bdpt info
 SCENE.xml`` lists every verdict).
 
 Example::
@@ -117,7 +131,8 @@ def _make_class(base: type) -> type:
             raise NotImplementedError(GRADIENT_ERROR % "backward")
 
         def aov_names(self):
-            return []
+            from bdpt_drjit import aovs
+            return aovs.channel_names(aovs.parse(self.settings.get("aovs", "")))
 
         def to_string(self):
             return "BDPTIntegrator[%s]" % ", ".join("%s=%r" % kv for kv in self.settings.items())

@@ -6,7 +6,10 @@ A path x_0 .. x_k has x_0 on an emitter and x_k = z_0 on the camera (a pinhole, 
 a point on a thin lens: ``test_thin_lens_weights_match_brute_force``).  Every per-vertex
 quantity (directional pdfs both ways, cosines, distances) is drawn at random, and
 vertices are made delta (specular) or the emitter a point light at random, so the
-test exercises every branch of the chains, including delta vertices.
+test exercises every branch of the chains, including delta vertices.  With
+``media``, every edge also has random distance densities in each direction (media.py:
+what a walk through media multiplies into a vertex's density), and vertices with
+cosine 1 stand for medium vertices.
 """
 import drjit as dr
 import mitsuba as mi
@@ -41,6 +44,20 @@ def random_path(rng, k, delta_prob=0.3, point_light_prob=0.3):
     P["nee_a"] = np.where(P["point_light"], 1.0, P["nee_a"])
     P["cos_fwd"][:, 0] = np.where(P["point_light"], 1.0, P["cos_fwd"][:, 0])
     P["lens_a"] = rng.uniform(0.5, 50.0, N)                # thin lens: 1 / (pi r^2)
+    P["dens_fwd"] = np.ones((N, k))     # distance density along edge i from x_i
+    P["dens_bwd"] = np.ones((N, k))     # ... and from x_{i+1}
+    return P
+
+
+def add_media(rng, P, k):
+    """Distance densities on every edge, and medium vertices (cosine 1) at random."""
+    P["dens_fwd"] = rng.uniform(0.02, 3.0, (N, k))
+    P["dens_bwd"] = rng.uniform(0.02, 3.0, (N, k))
+    medium = rng.uniform(size=(N, k + 1)) < 0.4
+    medium[:, 0] = medium[:, k] = False
+    medium &= ~P["delta"]
+    P["cos_fwd"] = np.where(medium[:, :k], 1.0, P["cos_fwd"])
+    P["cos_bwd"] = np.where(medium[:, 1:], 1.0, P["cos_bwd"])
     return P
 
 
@@ -70,16 +87,13 @@ def brute_force_pdf(P, k, s, lens=False):
     for i in range(s):                          # light side x_0 .. x_{s-1}
         if i == 0:
             p *= P["nee_a"] if (s == 1 and k > 1) else P["e_pos"]
-        elif i == 1:
-            # emission direction pdf: pdf_l[0] plays pdf_dir
-            p *= P["pdf_l"][:, 0] * P["cos_bwd"][:, 0] / P["dist2"][:, 0]
         else:
-            p *= P["pdf_l"][:, i - 1] * P["cos_bwd"][:, i - 1] / P["dist2"][:, i - 1]
+            # (at i = 1 pdf_l[0] plays the emission direction pdf)
+            p *= (P["pdf_l"][:, i - 1] * P["cos_bwd"][:, i - 1] / P["dist2"][:, i - 1]
+                  * P["dens_fwd"][:, i - 1])
     for i in range(s, k):                       # camera side x_s .. x_{k-1}
-        if i == k - 1:
-            p *= P["cam_w"] * P["cos_fwd"][:, k - 1] / P["dist2"][:, k - 1]
-        else:
-            p *= P["pdf_e"][:, i + 1] * P["cos_fwd"][:, i] / P["dist2"][:, i]
+        pdf_w = P["cam_w"] if i == k - 1 else P["pdf_e"][:, i + 1]
+        p *= pdf_w * P["cos_fwd"][:, i] / P["dist2"][:, i] * P["dens_bwd"][:, i]
     return p
 
 
@@ -104,8 +118,10 @@ def chain_weights(P, k, h, light_image, r=1.0, kappa=1.0):
     # light subpath: states at x_1 .. x_{k-1}
     light = {}
     d_vc = mis.light_start(h, emission_pdf, F(P["cos_fwd"][:, 0]), B(P["point_light"]))
+    fwd, bwd = P["dens_fwd"], P["dens_bwd"]
     d_vcm, d_vc = mis.light_first_hit(h, d_vc, F(P["nee_a"]), emission_pdf,
-                                      F(P["dist2"][:, 0]), F(P["cos_bwd"][:, 0]))
+                                      F(P["dist2"][:, 0]), F(P["cos_bwd"][:, 0]),
+                                      F(fwd[:, 0]), F(bwd[:, 0]))
     m = lambda depth: 1.0 if depth == 1 else kappa      # noqa: E731  (d_vcm's strategy)
     for i in range(1, k):
         light[i] = (d_vcm, d_vc)
@@ -113,18 +129,21 @@ def chain_weights(P, k, h, light_image, r=1.0, kappa=1.0):
             d_vcm, d_vc = mis.after_scatter(h, d_vcm, d_vc, F(P["cos_fwd"][:, i]),
                                             F(P["pdf_l"][:, i]), F(P["pdf_e"][:, i]),
                                             B(P["delta"][:, i]), m(i))
-            d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, i]), F(P["cos_bwd"][:, i]))
+            d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, i]), F(P["cos_bwd"][:, i]),
+                                        F(fwd[:, i]), F(bwd[:, i]))
     # camera subpath: states at x_{k-1} .. x_0
     cam = {}
     d_vcm, d_vc = mis.camera_start(h, F(P["cam_w"]), r, light_image)
-    d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, k - 1]), F(P["cos_fwd"][:, k - 1]))
+    d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, k - 1]), F(P["cos_fwd"][:, k - 1]),
+                                F(bwd[:, k - 1]), F(fwd[:, k - 1]))
     for i in range(k - 1, -1, -1):
         cam[i] = (d_vcm, d_vc)
         if i > 0:
             d_vcm, d_vc = mis.after_scatter(h, d_vcm, d_vc, F(P["cos_bwd"][:, i - 1]),
                                             F(P["pdf_e"][:, i]), F(P["pdf_l"][:, i]),
                                             B(P["delta"][:, i]), m(k - i))
-            d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, i - 1]), F(P["cos_fwd"][:, i - 1]))
+            d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, i - 1]),
+                                        F(P["cos_fwd"][:, i - 1]), F(bwd[:, i - 1]), F(fwd[:, i - 1]))
 
     w = {}
     for s in range(0, k + 1):
@@ -136,24 +155,28 @@ def chain_weights(P, k, h, light_image, r=1.0, kappa=1.0):
                 direct = F(np.zeros(N))
             w[s] = mis.weight_emission_hit(h, dv[0], dv[1], direct, emission_pdf)
         elif s == 1 and t == 1:
-            cam_a = F(P["cam_w"] * P["cos_fwd"][:, 0] / P["dist2"][:, 0] / r)
+            cam_a = F(P["cam_w"] * P["cos_fwd"][:, 0] / P["dist2"][:, 0] * bwd[:, 0] / r)
             w[s] = mis.weight_emitter_to_camera(h, cam_a, F(P["e_pos"]))
         elif s == 1:
             dv = cam[1]
             bsdf_pdf = np.where(P["point_light"], 0.0, P["pdf_e"][:, 1])
             nee_w = P["nee_a"] * P["dist2"][:, 0] / P["cos_fwd"][:, 0]
-            w[s] = mis.weight_nee(h, dv[0], dv[1], F(bsdf_pdf), F(nee_w), emission_pdf,
+            w[s] = mis.weight_nee(h, dv[0], dv[1], F(bsdf_pdf * bwd[:, 0]), F(nee_w),
+                                  emission_pdf * F(fwd[:, 0]),
                                   F(P["cos_bwd"][:, 0]), F(P["cos_fwd"][:, 0]), F(P["pdf_l"][:, 1]),
                                   m(k - 1))
         elif t == 1:
             lv = light[k - 1]
-            cam_a = F(P["cam_w"] * P["cos_fwd"][:, k - 1] / P["dist2"][:, k - 1] / r)
+            cam_a = F(P["cam_w"] * P["cos_fwd"][:, k - 1] / P["dist2"][:, k - 1]
+                      * bwd[:, k - 1] / r)
             w[s] = mis.weight_light_to_camera(h, lv[0], lv[1], cam_a, F(P["pdf_e"][:, k - 1]),
                                               m(k - 1))
         else:
             lv, cv = light[s - 1], cam[s]
-            cam_pdf_a = P["pdf_e"][:, s] * P["cos_fwd"][:, s - 1] / P["dist2"][:, s - 1]
-            light_pdf_a = P["pdf_l"][:, s - 1] * P["cos_bwd"][:, s - 1] / P["dist2"][:, s - 1]
+            cam_pdf_a = (P["pdf_e"][:, s] * P["cos_fwd"][:, s - 1] / P["dist2"][:, s - 1]
+                         * bwd[:, s - 1])
+            light_pdf_a = (P["pdf_l"][:, s - 1] * P["cos_bwd"][:, s - 1] / P["dist2"][:, s - 1]
+                           * fwd[:, s - 1])
             w[s] = mis.weight_connect(h, lv[0], lv[1], cv[0], cv[1], F(cam_pdf_a),
                                       F(P["pdf_l"][:, s]), F(light_pdf_a), F(P["pdf_e"][:, s - 1]),
                                       m(s - 1), m(k - s), kappa)
@@ -187,8 +210,22 @@ def test_thin_lens_weights_match_brute_force(heuristic, k, r, kappa):
                               kappa, lens=True)
 
 
-def check_against_brute_force(rng, heuristic, light_image, k, r, kappa, lens=False):
+@pytest.mark.parametrize("heuristic", ["power", "balance"])
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 5])
+@pytest.mark.parametrize("r, kappa", [(1.0, 1.0), (0.5, 0.3), (1.0, 0.0)])
+def test_media_weights_match_brute_force(heuristic, k, r, kappa):
+    """Paths through media: each edge's distance densities (both directions) and
+    medium vertices (cosine 1) enter the chains (mis.after_hit) as they enter the
+    brute-force product of per-vertex densities."""
+    check_against_brute_force(np.random.default_rng(300 * k + 11), heuristic, True, k, r,
+                              kappa, media=True)
+
+
+def check_against_brute_force(rng, heuristic, light_image, k, r, kappa, lens=False,
+                              media=False):
     P = random_path(rng, k)
+    if media:
+        P = add_media(rng, P, k)
     h = mis.Heuristic(heuristic)
     w = chain_weights(P, k, h, light_image, r, kappa)
     valid = {s: strategy_valid(P, k, s, light_image) & (rate(k, s, r, kappa) > 0)

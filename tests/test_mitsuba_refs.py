@@ -50,12 +50,12 @@ def test_agrees_with_mitsuba_reference(folder, xml, ref, max_depth):
 @pytest.mark.parametrize("name", BSDF_SPHERES)
 def test_light_vertex_record_evaluates_like_the_interaction(name):
     """A stored light vertex keeps only part of its SurfaceInteraction
-    (surface.SurfaceRecord).  Every BSDF here (normal and bump maps, textures,
+    (surface.VertexRecord).  Every BSDF here (normal and bump maps, textures,
     principled) must give the same values and pdfs, in both transport modes, from the
     record as from the full interaction: the reference scenes render at max_depth 2,
     where no stored vertex is ever connected (s, t >= 2 needs k >= 3), so only this
     test sees a field the record drops (a bump map reads dp_du and dp_dv)."""
-    from bdpt_drjit.surface import SurfaceRecord
+    from bdpt_drjit.surface import Vertex, VertexRecord
     path = external(*TESTS.parts, "bsdf_spheres", "test_%s_path.xml" % name)
     scene = mi.load_file(str(path), integrator="path")
     n = 4096
@@ -65,7 +65,7 @@ def test_light_vertex_record_evaluates_like_the_interaction(name):
     si = scene.ray_intersect(ray)
     hit = si.is_valid()
     assert dr.count(hit)[0] > n // 8, "the camera should see the spheres"
-    record = SurfaceRecord.of(si).interaction(si.time, si.wavelengths)
+    record = VertexRecord.of(Vertex(si, si.bsdf())).interaction(si.time, si.wavelengths)
     wo = mi.warp.square_to_uniform_sphere(sampler.next_2d())
     for mode in (mi.TransportMode.Radiance, mi.TransportMode.Importance):
         ctx = mi.BSDFContext(mode)

@@ -34,6 +34,7 @@ import bdpt_drjit
 from bdpt_drjit.mis import Weights
 from bdpt_drjit.settings import Settings
 from bdpt_drjit.strategies import StrategySet
+from bdpt_drjit.surface import Vertex
 from bdpt_drjit.walk import DepthSamples, PathState, _scatter
 from conftest import mitsuba_render, scene_path
 from stats import assert_statistically_equal
@@ -78,11 +79,11 @@ def test_light_walk_scatter_transports_the_bsdf_albedo(alpha, cos_i, side):
     bsdf = si.bsdf()
     settings = Settings(rr_depth=1000)
     ctx = SimpleNamespace(weights=Weights("power", StrategySet(settings, True)), settings=settings,
-                          moments=None)
+                          moments=None, media=SimpleNamespace(present=False))
     state = PathState.start(dr.zeros(mi.Ray3f, n), dr.ones(mi.Spectrum, n), 0.0, 0.0,
                             dr.zeros(mi.Interaction3f, n), True)
-    _scatter(ctx, state, si, bsdf, DepthSamples.draw(_sampler(1, n)), dr.full(mi.Bool, True, n),
-             importance=True)
+    _scatter(ctx, state, Vertex(si, bsdf), DepthSamples.draw(_sampler(1, n)),
+             dr.full(mi.Bool, True, n), importance=True)
     ours = np.array(state.beta[0])                          # the scatter's weight
     sampler = _sampler(2, n)
     _, w = bsdf.sample(IMPORTANCE, si, sampler.next_1d(), sampler.next_2d())

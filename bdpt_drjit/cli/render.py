@@ -49,8 +49,8 @@ class Outputs:
 
     def write(self, res, meta) -> list:
         from ..exr import write_exr, write_layers
-        jobs = [(self.exr, lambda p: write_exr(p, res.image, meta)),
-                (self.png, lambda p: write_png(p, res.image))]
+        jobs = [(self.exr, lambda p: write_exr(p, res.image, meta, channels=res.channels)),
+                (self.png, lambda p: write_png(p, res.image[..., :len(res.channels) - len(res.aov_names)]))]
         if self.strategy_images:
             layers = {"s%dt%d" % st: img for st, img in sorted(res.strategy_images.items())}
             # Longer paths: one layer per length; "k<DEEP_K+1>+" holds all longer ones.
