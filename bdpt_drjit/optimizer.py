@@ -88,16 +88,22 @@ class MomentSamples:
         validity)."""
         idx = dr.arange(mi.UInt32, self.lanes * self.SLOTS)
         live = idx % self.SLOTS < dr.gather(mi.UInt32, self.count, idx // self.SLOTS)
+        f64 = dr.float64_array_t(mi.Float)
         sums = np.zeros(len(rates))
         for items, valid in [(self.items, live)] + ([] if splats is None else [splats]):
             keep = dr.compress(valid)                # the recorded samples only
+            if dr.width(keep) == 0:
+                continue
             s = gather(items, keep)
-            relative = np.array(s.f2 / dr.gather(mi.Float, mean2, s.pixel), np.float64)
-            u_pt, u_lt = np.array(s.u_pt, np.float64), np.array(s.u_lt, np.float64)
-            u_con = np.maximum(1.0 - u_pt - u_lt, 0.0)
-            share = u_pt + rates[:, :1] * u_lt + rates[:, 1:] * u_con
+            relative = f64(s.f2 / dr.gather(mi.Float, mean2, s.pixel))
+            u_pt, u_lt = f64(s.u_pt), f64(s.u_lt)
+            u_con = dr.maximum(1.0 - u_pt - u_lt, 0.0)
             # A share of 0: the candidate cannot sample this path (infinite moment).
-            sums += (relative / np.maximum(share, 1e-9)).sum(axis=1)
+            # (Reduced by Dr.Jit: numpy took 0.16 s for 17 candidates x 186k samples.)
+            parts = [dr.sum(relative / dr.maximum(u_pt + r * u_lt + k * u_con, 1e-9))
+                     for r, k in rates.tolist()]
+            dr.eval(parts)
+            sums += np.array([float(p[0]) for p in parts])
         return sums
 
 
