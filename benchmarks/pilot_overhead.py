@@ -1,0 +1,66 @@
+"""The pilot's share of a default ("auto" budget) render: each pass and the decision
+timed, on the Cornell box.
+
+    python -m benchmarks.pilot_overhead            # 256x256, 64 spp, 3 renders
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import drjit as dr
+import mitsuba as mi
+
+from . import common as C
+
+
+def timed_render(scene, spp: int, seed: int) -> dict:
+    """Seconds per pass and of the decision of one render, wrapped around the
+    renderer's own stages."""
+    import importlib
+    import bdpt_drjit
+    render_mod = importlib.import_module("bdpt_drjit.render")
+    from bdpt_drjit import optimizer
+    passes, decide = [], []
+    run_pass, choose = render_mod.Renderer._render_pass, optimizer.Pilot.decide
+
+    def timed_pass(self, index, *args):
+        t = time.perf_counter()
+        run_pass(self, index, *args)
+        dr.sync_thread()
+        passes.append(time.perf_counter() - t)
+
+    def timed_decide(self, *args):
+        t = time.perf_counter()
+        out = choose(self, *args)
+        decide.append(time.perf_counter() - t)
+        return out
+
+    render_mod.Renderer._render_pass, optimizer.Pilot.decide = timed_pass, timed_decide
+    try:
+        t = time.perf_counter()
+        res = bdpt_drjit.render(scene, spp=spp, seed=seed, max_depth=8)
+        total = time.perf_counter() - t
+    finally:
+        render_mod.Renderer._render_pass, optimizer.Pilot.decide = run_pass, choose
+    pilot = sum(passes[:2])
+    return {"total": total, "pilot": pilot, "decide": sum(decide), "budget": res.stats["budget"],
+            "share": pilot / total}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--res", type=int, default=256)
+    ap.add_argument("--spp", type=int, default=64)
+    ap.add_argument("--repeats", type=int, default=3)
+    a = ap.parse_args()
+    scene = mi.load_file(str(C.ROOT / "scenes" / "cornell-box.xml"), resx=a.res, resy=a.res)
+    timed_render(scene, a.spp, 1)                       # warm-up: kernels
+    for i in range(a.repeats):
+        r = timed_render(scene, a.spp, 1000 + i)
+        C.log("render %.3f s, pilot passes %.3f s (of which the decision %.3f s): %.1f%%; "
+              "budget %s" % (r["total"], r["pilot"], r["decide"], 100 * r["share"], r["budget"]))
+
+
+if __name__ == "__main__":
+    main()
