@@ -227,13 +227,14 @@ class Media:
         mei = medium.sample_interaction(ray, u_distance, draw_channel(u_channel), in_medium)
         mei.t = dr.select(in_medium & (si.t < mei.t), dr.inf, mei.t)
         tr, pdf = medium.transmittance_eval_pdf(mei, si, in_medium)
-        weight = dr.select(in_medium, tr * _safe_div(1.0, channel_mean(pdf)), 1.0)
+        weight = mi.Spectrum(dr.select(in_medium, tr * _safe_div(1.0, channel_mean(pdf)), 1.0))
         collided = in_medium & mei.is_valid()
         p_null = channel_mean(_safe_div(mei.sigma_n, mei.combined_extinction))
         null = collided & (u_collision < p_null)
         real = collided & ~null
-        weight *= dr.select(null, mei.sigma_n * _safe_div(1.0, p_null),
-                            dr.select(real, mei.sigma_s * _safe_div(1.0, 1.0 - p_null), 1.0))
+        weight *= mi.Spectrum(dr.select(null, mei.sigma_n * _safe_div(1.0, p_null),
+                                        dr.select(real, mei.sigma_s * _safe_div(1.0, 1.0 - p_null),
+                                                  1.0)))
         homogeneous = in_medium & medium.is_homogeneous()
         sigma_behind = dr.select(loop.first, behind, 1.0)
         loop.weight = dr.select(going, loop.weight * weight, loop.weight)
@@ -293,10 +294,10 @@ class Media:
             # Heterogeneous: ratio tracking (a tentative collision multiplies by
             # sigma_n / majorant; Mitsuba's heterogeneous medium has one majorant).
             tracked = in_medium & ~homogeneous & mei.is_valid() & (mei.t < end)
-            tr[tracked] *= _safe_div(mei.sigma_n, mei.combined_extinction)
+            tr[tracked] *= mi.Spectrum(_safe_div(mei.sigma_n, mei.combined_extinction))
             # Homogeneous: the closed form over the whole segment.
             last = going & ~tracked & ~(si.t < ray.maxt)
-            seg = self._homogeneous_tr(ray, medium, end, homogeneous)
+            seg = mi.Spectrum(self._homogeneous_tr(ray, medium, end, homogeneous))
             tr[homogeneous] *= seg
             dens_fwd[homogeneous] *= channel_mean(seg * dr.select(last, target_sigma, 1.0))
             dens_rev[homogeneous] *= channel_mean(seg * dr.select(first, origin_sigma, 1.0))

@@ -34,6 +34,31 @@ def mitsuba_render(scene, integrator: str, spp: int, seed: int, **props) -> np.n
     return np.array(mi.render(scene, integrator=integ, spp=spp, seed=seed))
 
 
+_VARIANT_CHECK = r"""
+import sys, numpy as np, mitsuba as mi
+mi.set_variant(sys.argv[1])
+import bdpt_drjit
+sc = mi.load_file(sys.argv[2], resx=16, resy=16)
+b = [bdpt_drjit.render(sc, spp=32, seed=s, max_depth=4, light_paths=1, connections="all").image.mean()
+     for s in range(8)]
+p = [np.array(mi.render(sc, integrator=mi.load_dict({'type': sys.argv[3], 'max_depth': 4}),
+                        spp=128, seed=50 + s)).mean() for s in range(8)]
+se = np.sqrt(np.var(b, ddof=1) / 8 + np.var(p, ddof=1) / 8)
+t = abs(np.mean(b) - np.mean(p)) / se
+print('%s bdpt %.5f %s %.5f t %.2f' % (sys.argv[1], np.mean(b), sys.argv[3], np.mean(p), t))
+sys.exit(0 if t < 5.4 else 1)   # t_{14 dof} quantile at p = 1e-4
+"""
+
+
+def assert_agrees_in_variant(variant: str, scene: str, integrator: str) -> None:
+    """bdpt and Mitsuba's ``integrator`` agree (whole-image mean, 8 seeds each) in
+    another variant, in a subprocess (a process keeps the variant it renders in)."""
+    import subprocess
+    p = subprocess.run([sys.executable, "-c", _VARIANT_CHECK, variant, scene, integrator],
+                       capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stdout + p.stderr
+
+
 def specular_pixels(scene, jitter=16):
     """Boolean (H, W) mask of pixels in which some primary ray hits a surface with a
     delta BSDF lobe (glass, mirror): there a light tracer cannot see anything."""

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import bdpt_drjit
-from conftest import SCENES, mitsuba_render, specular_pixels
+from conftest import SCENES, assert_agrees_in_variant, mitsuba_render, specular_pixels
 from stats import assert_statistically_equal, t_threshold, welch_dof
 
 MEDIA = SCENES / "media"
@@ -142,6 +142,17 @@ def test_volumetric_caustic_of_a_sphere_light_agrees_with_volpath():
     scene = _load("volumetric-caustic-sphere.xml", res=16)
     assert_statistically_equal(_bdpt(scene, 64, 8, max_depth=8), _volpath(scene, 2048, 8),
                                what="volumetric caustic, sphere light")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("variant, scene", [("llvm_ad_spectral", "fog-cube.xml"),
+                                            ("llvm_ad_spectral", "cloud.xml"),
+                                            ("llvm_ad_mono", "fog-cube.xml")])
+def test_spectral_and_mono_variants(variant, scene):
+    """Media in the spectral (the hero wavelength's free-flight density) and mono
+    variants; the spectral variant crashed while the RGB one passed (a transmittance of
+    the medium's unpolarized type mixed into a Spectrum)."""
+    assert_agrees_in_variant(variant, str(MEDIA / scene), "volpath")
 
 
 # -- stability -------------------------------------------------------------------------------

@@ -7,7 +7,7 @@ import pytest
 import drjit as dr
 import mitsuba as mi
 import bdpt_drjit
-from conftest import mitsuba_render, scene_path
+from conftest import assert_agrees_in_variant, mitsuba_render, scene_path
 from stats import assert_statistically_equal
 
 
@@ -259,19 +259,6 @@ def test_scalar_variant_is_refused():
         mi.set_variant(variant)
 
 
-_VARIANT_CHECK = r"""
-import sys, numpy as np, mitsuba as mi
-mi.set_variant(sys.argv[1])
-import bdpt_drjit
-sc = mi.load_file(sys.argv[2], resx=16, resy=16)
-b = [bdpt_drjit.render(sc, spp=32, seed=s, max_depth=4).image.mean() for s in range(8)]
-p = [np.array(mi.render(sc, integrator=mi.load_dict({'type': 'path', 'max_depth': 4}),
-                        spp=128, seed=50 + s)).mean() for s in range(8)]
-se = np.sqrt(np.var(b, ddof=1) / 8 + np.var(p, ddof=1) / 8)
-t = abs(np.mean(b) - np.mean(p)) / se
-print('%s bdpt %.5f path %.5f t %.2f' % (sys.argv[1], np.mean(b), np.mean(p), t))
-sys.exit(0 if t < 5.4 else 1)   # t_{14 dof} quantile at p = 1e-4
-"""
 
 
 @pytest.mark.slow
@@ -279,11 +266,7 @@ sys.exit(0 if t < 5.4 else 1)   # t_{14 dof} quantile at p = 1e-4
 def test_spectral_and_mono_variants(variant):
     """Spectral (wavelengths shared by both subpaths) and monochrome variants agree
     with Mitsuba's path tracer in the same variant (whole-image mean, 8 seeds each)."""
-    import subprocess
-    import sys
-    p = subprocess.run([sys.executable, "-c", _VARIANT_CHECK, variant, scene_path("cornell-box.xml")],
-                       capture_output=True, text=True, timeout=600)
-    assert p.returncode == 0, p.stdout + p.stderr
+    assert_agrees_in_variant(variant, scene_path("cornell-box.xml"), "path")
 
 
 @pytest.mark.slow
