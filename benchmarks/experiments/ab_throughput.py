@@ -14,15 +14,12 @@ import json
 import sys
 import time
 
-sys.path.insert(0, sys.argv[1])
-import bdpt_drjit  # noqa: E402
-import drjit as dr  # noqa: E402
-import mitsuba as mi  # noqa: E402
-import numpy as np  # noqa: E402
+import numpy as np
 
 
 def timed(render, seed):
     """Wall seconds minus the compile time of kernels compiled inside, and how many."""
+    import drjit as dr
     dr.kernel_history()
     t = time.perf_counter()
     render(seed)
@@ -34,6 +31,10 @@ def timed(render, seed):
 
 
 def main():
+    sys.path.insert(0, sys.argv[1])          # the checkout to measure, before importing it
+    import bdpt_drjit
+    import drjit as dr
+    import mitsuba as mi
     scene_file, res, spp, md = sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
     repeats = int(sys.argv[6]) if len(sys.argv) > 6 else 3
     dr.set_flag(dr.JitFlag.KernelHistory, True)
