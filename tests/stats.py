@@ -57,7 +57,7 @@ def assert_statistically_equal(a_imgs, b_imgs, blocks=4, p_false=1e-4, what="", 
         se = np.sqrt(va + vb)
         if se == 0:
             # Deterministic on both sides (e.g. a constant sky seen through nothing):
-            # equal up to float32 rounding of the two films' sums (~10 ulp).
+            # equal up to float32 rounding of the two films' sums (1.25e-6 at ~0.3, ~40 ulp, seen).
             assert diff < 1e-6 + 1e-5 * abs(mb.mean()), "%s: region %s differs by %g with zero variance" % (what, r, diff)
             continue
         dof = welch_dof(va, vb, len(ma), len(mb))
