@@ -9,6 +9,12 @@ A budget is the pair (N_L / N_C, connections per camera vertex):
   its light subpath (Veach's BDPT); a count M connects it to M vertices drawn from
   all the pass's stored light vertices (a light vertex cache, Davidovic et al.
   2014); 0 connects nothing (light tracing and path tracing, MIS'ed together).
+* ``light_first_hits``: the light image alone renders every path whose first camera
+  vertex z_1 scatters smoothly (or is an emitter seen directly); the camera walk
+  goes past z_1 only through a delta lobe, where no light vertex can be connected
+  to the camera.  This is light tracing (Mitsuba's ``ptracer``) made unbiased in any
+  scene: whether z_1 is delta is a property of the path, so the strategies allowed
+  to sample each path still have MIS weights that sum to one (mis.Weights).
 
 Every budget is a valid MIS combination (mis.py's rates), so any sequence of
 budgets gives an unbiased image.  With ``light_paths`` / ``connections`` left at
@@ -24,6 +30,7 @@ from dataclasses import dataclass
 class Budget:
     light_ratio: float = 1.0         # N_L / N_C
     connections: object = "all"      # "all" or a count M >= 0
+    light_first_hits: bool = False   # smooth first camera vertices: light image only
 
     def light_subpaths(self, camera_samples: int) -> int:
         """N_L for a pass of ``camera_samples`` lanes."""
@@ -52,7 +59,8 @@ class Budget:
 
     def __str__(self) -> str:
         ratio = ("%g" % self.light_ratio) if not math.isnan(self.light_ratio) else "?"
-        return "light_paths=%s connections=%s" % (ratio, self.connections)
+        first = " first_hits=light_image" if self.light_first_hits else ""
+        return "light_paths=%s connections=%s%s" % (ratio, self.connections, first)
 
 
 BDPT = Budget(1.0, "all")
@@ -69,4 +77,5 @@ def fixed_budget(settings) -> Budget | None:
         return Budget(1.0, 0)
     if settings.light_paths == "auto" or settings.connections == "auto":
         return None
-    return Budget(float(settings.light_paths), settings.connections)
+    return Budget(float(settings.light_paths), settings.connections,
+                  settings.first_hits == "light_image")

@@ -304,6 +304,12 @@ class Weights:
         self.lafortune = self.on and self.h.is_lafortune
         self.rival_11 = bool(strategies.enabled(1, 1))
         self.light_image = strategies.light_image
+        # The light image is the only strategy left for paths whose z_1 scatters
+        # smoothly (budgets.Budget.light_first_hits): a t = 1 contribution has a smooth
+        # z_1 (= y_{s-1}, connected to the camera) and so weight 1, and the camera walk
+        # evaluates nothing at a z_1 hit and continues past z_1 only through a delta
+        # lobe, where d_vcm = 0 already drops the t = 1 term from every chain.
+        self.light_first_hits = strategies.light_first_hits
         # Are there strategies beyond s <= 1?  Without them the chains stay 0 and the
         # densities that only feed them (reverse pdfs, emission densities) are not
         # computed: path tracing then costs what Mitsuba's path costs.
@@ -396,14 +402,14 @@ class Weights:
     def light_to_camera(self, d_vcm, d_vc, depth, cam_pdf_a, bsdf_rev_w):
         """t = 1 at light vertex y_{s-1} (s - 1 = ``depth``); ``cam_pdf_a``: the
         camera's area density there.  The light image's rate is N_L / N_C."""
-        if not self.on:
+        if not self.on or self.light_first_hits:
             return mi.Float(1.0)
         return weight_light_to_camera(self.h, d_vcm, d_vc, cam_pdf_a / self.light_ratio,
                                       bsdf_rev_w, self.rate(depth))
 
     def emitter_to_camera(self, cam_pdf_a, pos_pdf_a):
         """(1,1), the light image at y_0."""
-        if not self.on:
+        if not self.on or self.light_first_hits:
             return mi.Float(1.0)
         return weight_emitter_to_camera(self.h, cam_pdf_a / self.light_ratio, pos_pdf_a)
 

@@ -19,9 +19,14 @@ it would miss light.  Each pixel's moment is divided by its squared mean (the pi
 image, box-filtered) and the sum over pixels is the candidate's relative error.
 
 Costs come from this engine's own kernel times in the pilot (no constants fitted to
-another renderer): seconds per camera sample of path tracing, per light subpath,
-and per camera sample for connecting to a whole light subpath; a vertex cache of M
-costs M / (stored vertices per light subpath) of the latter.
+another renderer): seconds per camera sample of path tracing (the first pass), per
+light subpath (a light walk without connections, timed beside the first pass and
+thrown away), for storing a light subpath's vertices (the rest of the BDPT pass's
+light walk), and per camera sample for connecting to a whole light subpath; a
+vertex cache of M costs M / (stored vertices per light subpath) of the latter.
+Timing the light walk inside the BDPT pass alone made light subpaths look twice as
+dear as they are to budgets without connections (the point-light caustic: 1.4e-7 s
+against 0.7e-7 s measured by rendering).
 """
 from __future__ import annotations
 
@@ -41,11 +46,23 @@ PILOT_LANES = 1 << 14          # a pilot pass's samples at least (timing needs w
 BLUR = 4                       # radius of the box filter on the pilot's mean image
 
 
-def candidates(spectral: bool) -> list[Budget]:
+def candidates(spectral: bool, light_image: bool = True) -> list[Budget]:
+    """Path tracing; per light-subpath ratio, light tracing with path tracing, with
+    all connections or with a vertex cache; and, at the largest ratio, light tracing
+    of smooth first hits (budgets.Budget.light_first_hits; it needs a light image).
+    That one wins where the camera walk past z_1 costs much and adds little; at
+    smaller ratios it never came close on the suite and would only lengthen the
+    decision."""
     ratios = (0.0, 1.0) if spectral else RATIOS
     out = [Budget(0.0, 0)]
     for r in ratios[1:]:
         out += [Budget(r, 0), Budget(r, "all")] + [Budget(r, m) for m in CACHE_PICKS]
+    if light_image:
+        out.append(Budget(ratios[-1], 0, True))
+    if not light_image:
+        # Light subpaths then serve connections alone: a budget with light subpaths and
+        # no connections would be path tracing that pays for light walks.
+        out = [b for b in out if b.light_ratio == 0 or b.connects]
     return out
 
 
@@ -82,10 +99,15 @@ class MomentSamples:
         return slot + dr.select(ok, 1, 0)
 
     def relative_moments(self, rates: np.ndarray, mean2: mi.Float, splats=None) -> np.ndarray:
-        """Per candidate (rows of ``rates``: r, kappa), the second moment of its
-        balance estimator relative to each pixel's squared mean ``mean2``, summed over
-        these samples and the pass's splats (a ``MomentSample`` of them, with its
-        validity)."""
+        """Per candidate (rows of ``rates``: r, kappa, light_first_hits), the second
+        moment of its balance estimator relative to each pixel's squared mean
+        ``mean2``, summed over these samples and the pass's splats (a ``MomentSample``
+        of them, with its validity).
+
+        A light_first_hits candidate samples a path whose z_1 is smooth by the light
+        image alone, and any other path as its base budget (r, kappa) does.  The light
+        image can sample exactly the paths with u_lt > 0 (at a delta z_1 the t = 1
+        term is 0), which tells the two kinds apart without a flag per sample."""
         idx = dr.arange(mi.UInt32, self.lanes * self.SLOTS)
         live = idx % self.SLOTS < dr.gather(mi.UInt32, self.count, idx // self.SLOTS)
         f64 = dr.float64_array_t(mi.Float)
@@ -100,8 +122,12 @@ class MomentSamples:
             u_con = dr.maximum(1.0 - u_pt - u_lt, 0.0)
             # A share of 0: the candidate cannot sample this path (infinite moment).
             # (Reduced by Dr.Jit: numpy took 0.16 s for 17 candidates x 186k samples.)
-            parts = [dr.sum(relative / dr.maximum(u_pt + r * u_lt + k * u_con, 1e-9))
-                     for r, k in rates.tolist()]
+            parts = []
+            for r, k, first_hits in rates.tolist():
+                share = u_pt + r * u_lt + k * u_con
+                if first_hits:
+                    share = dr.select(u_lt > 0, r * u_lt, share)
+                parts.append(dr.sum(relative / dr.maximum(share, 1e-9)))
             dr.eval(parts)
             sums += np.array([float(p[0]) for p in parts])
         return sums
@@ -112,12 +138,18 @@ class Costs:
     """Seconds of kernel time, measured in the pilot."""
     path_per_sample: float = 0.0      # camera walk with s <= 1, per camera sample
     light_per_path: float = 0.0       # light walk with t = 1 splats, per light subpath
+    store_per_path: float = 0.0       # storing its vertices for connections, the same
     connect_per_sample: float = 0.0   # connecting to a whole light subpath, per sample
     stored_per_path: float = 1.0      # stored light vertices per light subpath
+    first_hit_share: float = 1.0      # of the camera walk's rays, those that a
+                                      # light_first_hits budget traces (z_1's ray, and
+                                      # all of a lane whose z_1 is delta)
 
     def of(self, b: Budget) -> float:
-        cost = self.path_per_sample + b.light_ratio * self.light_per_path
+        camera = self.path_per_sample * (self.first_hit_share if b.light_first_hits else 1.0)
+        cost = camera + b.light_ratio * self.light_per_path
         if b.connects:
+            cost += b.light_ratio * self.store_per_path
             full = self.connect_per_sample
             cost += full if b.connections == "all" else full * min(
                 1.0, b.connections / max(self.stored_per_path, 1e-3))
@@ -135,10 +167,19 @@ class Decision:
         return "chose %s (%s)" % (self.budget, "; ".join(rows))
 
 
+# Relative moments divide by max(mean^2, DARK * image mean^2): a pixel darker than
+# a tenth of the image's mean weighs as if it were that bright.  Relative error in a
+# near-black pixel is invisible once the image is tone-mapped, and so it is in the
+# benchmarks' relative MSE (mean^2 + 0.01).  With 1e-4 the point-light caustic's
+# shadow (blurred mean ~0.003 against 0.4) outweighed the caustic and the direct
+# light: it chose 1 light subpath per sample where 2 render it 1.3x faster.
+DARK = 1e-2
+
+
 def squared_mean(mean: np.ndarray) -> np.ndarray:
-    """The pilot's mean image, box-filtered and squared, with a floor (relative
-    moments divide by it)."""
-    return np.maximum(np.square(_blur(mean)), 1e-4 * max(float(np.mean(mean)) ** 2, 1e-12))
+    """The pilot's mean image, box-filtered and squared, with the floor above
+    (relative moments divide by it)."""
+    return np.maximum(np.square(_blur(mean)), DARK * max(float(np.mean(mean)) ** 2, 1e-12))
 
 
 def decide(cands: list[Budget], relative: np.ndarray, costs: Costs) -> Decision:
@@ -172,8 +213,8 @@ class Pilot:
         pixels to time the kernels, at most 1/16 of the render."""
         return max(1, min(-(-PILOT_LANES // pixels), total_spp // 16))
 
-    def __init__(self, spectral: bool):
-        self.candidates = candidates(spectral)
+    def __init__(self, spectral: bool, light_image: bool = True):
+        self.candidates = candidates(spectral, light_image)
         self.costs = Costs()
         self.decision: Decision | None = None
         self._path_camera = 0.0          # seconds per sample of the path-tracing pass
@@ -186,21 +227,24 @@ class Pilot:
         return Budget(1.0, "all"), "balance", True
 
     def record(self, index: int, light_seconds: float, camera_seconds: float, lanes: int,
-               light_subpaths: int, stored: int) -> None:
+               light_subpaths: int, stored: int, first_hit_share: float = 1.0) -> None:
         """Kernel times of a pilot pass's walks (compilation excluded)."""
-        if index == 0:
+        if index == 0:     # light_seconds: the timing walk of budgets without connections
             self._path_camera = camera_seconds / lanes
             self.costs.path_per_sample = self._path_camera
+            self.costs.first_hit_share = first_hit_share
+            self.costs.light_per_path = light_seconds / lanes
             return
-        self.costs.light_per_path = light_seconds / max(light_subpaths, 1)
+        self.costs.store_per_path = max(light_seconds / max(light_subpaths, 1)
+                                        - self.costs.light_per_path, 0.0)
         self.costs.connect_per_sample = max(camera_seconds / lanes - self._path_camera, 0.0)
         self.costs.stored_per_path = stored / max(light_subpaths, 1)
 
     def decide(self, samples: MomentSamples, splats, mean: np.ndarray) -> Decision:
         """The budget for the rest of the render, from the BDPT pilot's samples and the
         image of both pilot passes (its luminance, (H, W))."""
-        rates = np.array([[b.light_ratio, b.kappa(1, self.costs.stored_per_path)]
-                          for b in self.candidates])
+        rates = np.array([[b.light_ratio, b.kappa(1, self.costs.stored_per_path),
+                           float(b.light_first_hits)] for b in self.candidates])
         mean2 = mi.Float(squared_mean(mean).ravel().astype(np.float32))
         relative = samples.relative_moments(rates, mean2, splats)
         self.decision = decide(self.candidates, relative, self.costs)

@@ -281,13 +281,15 @@ class Renderer:
         tracing on the even pixels and BDPT on the odd ones (optimizer.py), so that
         every pixel has the same samples after them and the pilot costs half a BDPT
         round; then the rest of the samples."""
-        self.pilot = Pilot(mi.is_spectral)
-        if not self.camera.light_image_possible:
-            # Without a light image, light subpaths serve connections alone: a budget
-            # with light subpaths and no connections would be path tracing that pays
-            # for light walks.
+        self.pilot = Pilot(mi.is_spectral,
+                           self.camera.light_image_possible and self.settings.light_image)
+        if self.settings.first_hits != "auto":
+            light = self.settings.first_hits == "light_image"
             self.pilot.candidates = [b for b in self.pilot.candidates
-                                     if b.light_ratio == 0 or b.connects]
+                                     if b.light_first_hits == light]
+            if not self.pilot.candidates:
+                raise ValueError("bdpt: first_hits='light_image' needs a camera that a light "
+                                 "vertex can be connected to (not an orthographic one)")
         spp = self._accepted_count(self.settings.samples_per_pass
                                    or Pilot.spp(self.pixels, self.spp))
         even, odd = (self.pixels + 1) // 2, self.pixels // 2
@@ -359,8 +361,8 @@ class Renderer:
             return budget, heuristic or self.settings.mis, moments
         return self.budget, self.settings.mis, False
 
-    def _context(self, index, rays, sampler, lanes: int, spp: int) -> PassContext:
-        budget, heuristic, moments = self._pass_rules(index)
+    def _context(self, index, rays, sampler, lanes: int, spp: int, rules=None) -> PassContext:
+        budget, heuristic, moments = rules or self._pass_rules(index)
         strategies, weights = self._rules(budget, heuristic)
         n_light = budget.light_subpaths(lanes) if strategies.max_light_vertices() != -1 else 0
         # MIS rates of the pass: a vertex cache's kappa from the stored vertices per light
@@ -412,12 +414,31 @@ class Renderer:
         self.film.camera_samples += lanes
         self.rays += int(dr.sum(cam.rays)[0]) + int(dr.sum(light_rays)[0])
         if timer.on:
+            if index == 0:
+                light_seconds = self._time_light_walk(index, rays, sampler, lanes, spp, timer)
             self._pilot_pass(index, ctx, store, cam, light_seconds, camera_seconds, lanes)
+
+    def _time_light_walk(self, index, rays, sampler, lanes, spp, timer) -> float:
+        """Kernel seconds of the light walk that budgets without connections run (no
+        stored vertices, no moment bookkeeping: the BDPT pilot's walk has both), over
+        one light subpath per lane of the path-tracing pilot pass.  Its splats are
+        thrown away: the pass's camera walk used path tracing's weights."""
+        ctx = self._context(index, rays, sampler, lanes, spp, (Budget(1.0, 0), self.settings.mis, False))
+        if ctx.light_count == 0:
+            return 0.0
+        timer.lap()
+        self._light_subpaths(ctx, index, spp)
+        return timer.lap()
 
     def _pilot_pass(self, index, ctx, store, cam, light_seconds, camera_seconds, lanes):
         """Record a pilot pass's costs; after the last one, choose the budget."""
         stored = 0 if store is None else store.vertices.size()
-        self.pilot.record(index, light_seconds, camera_seconds, lanes, ctx.light_count, stored)
+        # The camera rays a light_first_hits budget would still trace: z_1's, and every
+        # ray of a lane that went on from z_1 through a delta lobe.
+        kept = dr.sum(dr.select(cam.specular_z1, cam.rays, dr.minimum(cam.rays, 1)))
+        share = float(kept[0]) / max(float(dr.sum(cam.rays)[0]), 1.0)
+        self.pilot.record(index, light_seconds, camera_seconds, lanes, ctx.light_count, stored,
+                          share)
         if ctx.moments is not None:
             ctx.moments.count = cam.slot
             mean = self.tensor().numpy()[..., :3].mean(axis=-1)

@@ -19,6 +19,7 @@ HEURISTICS = ("power", "balance", "uniform", "lafortune")
 # with next-event estimation (s <= 1, MIS between the two), "lt" = light tracing
 # (t = 1: one strategy per path length, weight 1).
 STRATEGY_SUBSETS = ("all", "pt", "lt")
+FIRST_HITS = ("auto", "all", "light_image")
 DEFAULT_MEMORY_BUDGET = 2 * 1024 ** 3
 
 
@@ -70,6 +71,12 @@ PARAMS = (
     Param("connections", str, "auto", "Connections per camera vertex: ``all`` (every "
           "vertex of its light subpath), a count M (M vertices drawn from all the "
           "pass's light vertices; 0 = none), or ``auto`` (chosen with light_paths)."),
+    Param("first_hits", str, "auto", "Which strategies render paths whose first camera "
+          "vertex scatters smoothly: ``all``, or ``light_image`` alone (light tracing "
+          "wherever the camera sees a diffuse or glossy surface, unbiased in any scene: "
+          "the camera walk goes on only behind delta surfaces), or ``auto`` (chosen with "
+          "light_paths; ``all`` when light_paths and connections are fixed).",
+          choices=FIRST_HITS),
     Param("aovs", str, "", "AOVs written beside the image, in Mitsuba's ``aov`` "
           "syntax: ``\"albedo:albedo,nn:sh_normal,dd:depth\"`` (types: albedo, depth, "
           "position, uv, geo_normal, sh_normal, dp_du, dp_dv, prim_index, shape_index; "
@@ -193,6 +200,7 @@ class Settings:
     strategy_subset: str = PARAM["strategy_subset"].default
     light_paths: object = PARAM["light_paths"].default
     connections: object = PARAM["connections"].default
+    first_hits: str = PARAM["first_hits"].default
     aovs: str = PARAM["aovs"].default
     samples_per_pass: int = PARAM["samples_per_pass"].default
     memory_budget: int = PARAM["memory_budget"].default
@@ -210,9 +218,13 @@ class Settings:
             self._check_technique()
         aovs.parse(self.aovs)                  # fail early on a bad list
         forced = self._forced_budget_reason()
-        if forced and (self.light_paths != "auto" or self.connections != "auto"):
-            raise ValueError("bdpt: light_paths and connections are fixed by %s; leave them "
-                             "'auto'" % forced)
+        if forced and (self.light_paths != "auto" or self.connections != "auto"
+                       or self.first_hits != "auto"):
+            raise ValueError("bdpt: light_paths, connections and first_hits are fixed by %s; "
+                             "leave them 'auto'" % forced)
+        if self.first_hits == "light_image" and (not self.light_image or self.light_paths == 0):
+            raise ValueError("bdpt: first_hits='light_image' needs the light image "
+                             "(light_image = true and light_paths > 0)")
 
     def _forced_budget_reason(self) -> str | None:
         """What fixes the budgets (budgets.py), if anything: a single technique, a

@@ -38,6 +38,12 @@ class StrategySet:
         self.light_image = (settings.light_image and light_image_possible
                             and budget.light_ratio > 0)
         self.connects = budget.connects
+        # Paths with a smooth z_1 are the light image's alone (budgets.Budget).
+        self.light_first_hits = budget.light_first_hits
+        if self.light_first_hits and not self.light_image:
+            raise ValueError("bdpt: a budget that leaves first hits to the light image needs "
+                             "the light image (light_image = true and a camera a light "
+                             "vertex can be connected to)")
         self.hide_emitters = settings.hide_emitters
         self.has_emitters = has_emitters
 

@@ -7,6 +7,9 @@
                               -> s, t >= 2 (z_j to the lane's stored light vertices)
                               -> scatter -> roulette
 
+A budget that leaves first hits to the light image (budgets.Budget.light_first_hits)
+evaluates nothing at z_1 and ends every camera subpath whose z_1 scatters smoothly.
+
 The loops are Dr.Jit symbolic loops (``dr.while_loop``): the kernel of a walk is
 traced once, whatever the depth a subpath reaches, the seed, the film size or
 the spp, so a render compiles nothing that an earlier one compiled.  On the CPU a
@@ -66,6 +69,7 @@ class PathState:
     hit: mi.Bool            # camera walk: the camera ray hit a surface (film alpha)
     last_item: mi.UInt32    # light walk: this lane's last stored vertex (or NONE)
     slot: mi.UInt32         # camera walk, pilot passes: moment samples recorded
+    specular_z1: mi.Bool    # camera walk: z_1 scattered through a delta lobe
     medium: mi.MediumPtr = None     # media: the medium the ray travels in
     sigma_prev: mi.Spectrum = None  # media: sigma_t at the ray's origin vertex (Vertex.sigma_t)
 
@@ -81,6 +85,7 @@ class PathState:
                          rays=dr.zeros(mi.UInt32, n), lw=dr.ones(mi.Float, n),
                          radiance=dr.zeros(mi.Spectrum, n), hit=dr.zeros(mi.Bool, n),
                          last_item=dr.full(mi.UInt32, NONE, n), slot=dr.zeros(mi.UInt32, n),
+                         specular_z1=dr.zeros(mi.Bool, n),
                          medium=mi.MediumPtr(medium) if media else None,
                          sigma_prev=dr.ones(mi.Spectrum, n) if media else None)
 
@@ -178,11 +183,15 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
 
     def step(state: PathState, u: DepthSamples, sampler):
         t = state.depth + 1
+        first = state.depth == 1
         flight, v = _next_vertex(ctx, state, sampler)
-        state.hit |= (state.depth == 1) & (flight.surface | flight.medium)
+        state.hit |= first & (flight.surface | flight.medium)
         if ctx.emitters.environment is not None:
             _add(ctx, state, 0, t, connect.environment_hit(ctx, state, flight))
         _camera_vertex_mis(ctx, state, v, flight)
+        walking = state.active
+        if ctx.strategies.light_first_hits:     # z_1's strategies are the light image's
+            state.active = walking & ~first
         connectible = state.active & v.smooth
         if ctx.emitters.count:
             _add(ctx, state, 0, t, connect.emission_hit(ctx, state, v))
@@ -191,8 +200,11 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
         if store is not None:
             state.radiance, rays = connect.stored_vertices(ctx, store, state, v, connectible)
             state.rays += rays
-        goes_on = state.active if max_j is None else state.active & (state.depth < max_j)
+        goes_on = walking if max_j is None else walking & (state.depth < max_j)
         delta = _scatter(ctx, state, v, u, goes_on, importance=False)
+        state.specular_z1 |= first & delta
+        if ctx.strategies.light_first_hits:     # past z_1 only through a delta lobe
+            state.active &= ~first | delta
         if ctx.weights.lafortune:
             state.lw *= ctx.weights.specularity(v.bsdf.flags(), delta)
 

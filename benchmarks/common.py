@@ -69,13 +69,16 @@ BDPT_PT = Method("bdpt-pt", "BDPT engine, PT strategies only", "bdpt",
                  (("mis", "power"), ("strategy_subset", "pt")), "C7", ":")
 BDPT_LT = Method("bdpt-lt", "BDPT engine, LT strategies only", "bdpt",
                  (("mis", "power"), ("strategy_subset", "lt")), "C8", ":")
+BDPT_FIRST_LT = Method("bdpt-first-lt", "BDPT engine, light image at smooth first hits", "bdpt",
+                       (("mis", "power"), ("light_paths", 2), ("connections", 0),
+                        ("first_hits", "light_image")), "C9", ":")
 PATH = Method("path", "Mitsuba path", "mitsuba", (("type", "path"),), "C3", "-")
 PTRACER = Method("ptracer", "Mitsuba ptracer", "mitsuba", (("type", "ptracer"),), "C5", "-.")
 VOLPATH = Method("volpath", "Mitsuba volpath", "mitsuba", (("type", "volpath"),), "C9", "-")
 VOLPATHMIS = Method("volpathmis", "Mitsuba volpathmis", "mitsuba", (("type", "volpathmis"),), "C8", "--")
 
 METHODS = {m.name: m for m in (BDPT_AUTO, BDPT_POWER, BDPT_BALANCE, BDPT_UNIFORM, BDPT_LAFORTUNE, BDPT_NO_LT,
-                                BDPT_PT, BDPT_LT, PATH, PTRACER, VOLPATH, VOLPATHMIS)}
+                                BDPT_PT, BDPT_LT, BDPT_FIRST_LT, PATH, PTRACER, VOLPATH, VOLPATHMIS)}
 
 
 def bdpt_settings_fields() -> set:
