@@ -397,7 +397,9 @@ class Renderer:
 
         # Stage 3: camera subpaths, with every strategy t >= 2.
         cam = trace_camera_subpaths(ctx, rays, store)
-        dr.eval(cam.radiance, cam.hit, cam.rays)
+        # Every output the pass reads, in the walk's one kernel: an output evaluated
+        # later would run the whole walk again (the pilot's slot counts did: 23 ms).
+        dr.eval(cam.radiance, cam.hit, cam.rays, cam.slot, cam.specular_z1)
         camera_seconds = timer.lap()
 
         # Stage 4: film.  Alpha as Mitsuba's path: 1 where the camera ray hit a surface,
