@@ -32,11 +32,11 @@ from .film import FilmAccumulator
 from .media import Media
 from .mis import Weights
 from .settings import Settings
-from .budgets import BDPT, Budget, fixed_budget
+from .budgets import BDPT, PATH_TRACING, Budget, fixed_budget
 from .optimizer import MIN_SPP, MomentSample, MomentSamples, Pilot
 from .strategies import StrategyImages, StrategySet
 from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore
-from .walk import trace_camera_subpaths, trace_light_subpaths
+from .walk import path_tracer_walk, trace_camera_subpaths, trace_light_subpaths
 
 # Bytes per lane besides the pools: camera rays, the samplers' state, the lane's list
 # head, and each walk's final state (a loop's outputs are arrays; inside it the state
@@ -260,9 +260,15 @@ class Renderer:
         max_lanes = min(max(1024, self.settings.memory_budget // lane_bytes), 2 ** 31)
         self.plan = plan_passes(self.spp, self.pixels, max_lanes, self.settings.samples_per_pass,
                                 self._accepted_count)
-        self.pilot, self._stride = None, {}
+        self.pilot, self._stride, self._path_tracer = None, {}, None
         if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
             self._plan_pilot(max_lanes)
+            if not self.media.present:
+                # Where the pilot chooses path tracing, Mitsuba's path renders the rest.
+                self._path_tracer = mi.load_dict({
+                    "type": "path", "max_depth": self.settings.max_depth,
+                    "rr_depth": self.settings.rr_depth,
+                    "hide_emitters": self.settings.hide_emitters})
         aov_list = aovs.parse(self.settings.aovs)
         self.aovs = aovs.AOVs(scene, aov_list) if aov_list else None
         self.film = FilmAccumulator(film, coalesce=self.spp >= 4, layers=layers,
@@ -270,7 +276,8 @@ class Renderer:
         self.passes_done = 0
         self.spp_done = 0.0           # samples per pixel rendered (fractional: pixel ranges)
         self.time = 0.0
-        self.rays = 0
+        self.rays = 0                 # traced by this engine's walks
+        self.path_tracer_spp = 0.0    # samples per pixel rendered by Mitsuba's path
         self._last_lanes = 0
         self._capacity = {}          # pool capacities per light subpath, raised on overflow
         self._vertices_per_path = 3.0   # stored light vertices per light subpath, last pass
@@ -396,7 +403,10 @@ class Renderer:
         light_seconds = timer.lap()
 
         # Stage 3: camera subpaths, with every strategy t >= 2.
-        cam = trace_camera_subpaths(ctx, rays, store)
+        delegated = (self._path_tracer is not None and index >= Pilot.PASSES
+                     and ctx.budget == PATH_TRACING)
+        cam = (path_tracer_walk(self._path_tracer, self.scene, rays, sampler) if delegated
+               else trace_camera_subpaths(ctx, rays, store))
         # Every output the pass reads, in the walk's one kernel: an output evaluated
         # later would run the whole walk again (the pilot's slot counts did: 23 ms).
         dr.eval(cam.radiance, cam.hit, cam.rays, cam.slot, cam.specular_z1)
@@ -414,7 +424,10 @@ class Renderer:
                                  lanes / ctx.light_count,
                                  None if ctx.images is None else ctx.images.layer_of)
         self.film.camera_samples += lanes
-        self.rays += int(dr.sum(cam.rays)[0]) + int(dr.sum(light_rays)[0])
+        if delegated:
+            self.path_tracer_spp += n_pixels * spp / self.pixels
+        else:
+            self.rays += int(dr.sum(cam.rays)[0]) + int(dr.sum(light_rays)[0])
         if timer.on:
             if index == 0:
                 light_seconds = self._time_light_walk(index, rays, sampler, lanes, spp, timer)
@@ -499,7 +512,9 @@ class Renderer:
                             rays=self.rays, kernel_history=list(self.kernel_history),
                             stats={"pixels": self.pixels,
                                    "lanes_per_pass": max(p[1] * p[2] for p in self.plan),
-                                   "rays_per_sample": self.rays / max(1, self.spp_done * self.pixels),
+                                   "rays_per_sample": self.rays / max(
+                                       1, (self.spp_done - self.path_tracer_spp) * self.pixels),
+                                   "path_tracer_spp": self.path_tracer_spp,
                                    "budget": str(self.budget), "decision": self.decision_text()})
 
     def decision_text(self) -> str:
@@ -511,7 +526,9 @@ class Renderer:
                     "full BDPT: fewer than %d spp, or a film split in pixel ranges" % MIN_SPP)
         if self.pilot.decision is None:
             return "pilot passes pending"
-        return self.pilot.decision.describe()
+        by_path = self._path_tracer is not None and self.budget == PATH_TRACING
+        return self.pilot.decision.describe() + ("; the passes after the pilot run Mitsuba's "
+                                                 "path" if by_path else "")
 
 
 def render(scene, spp: int | None = None, seed: int = 0, sensor=0,

@@ -211,6 +211,29 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
     return _loop("camera subpaths", state, ctx.camera_sampler, step)
 
 
+@dataclass
+class PathTracerWalk:
+    """What a pass reads of a camera walk (``PathState``'s fields of that name)."""
+    radiance: mi.Spectrum
+    hit: mi.Bool
+    rays: mi.UInt32          # not counted by Mitsuba: 0
+    slot: mi.UInt32
+    specular_z1: mi.Bool
+
+
+def path_tracer_walk(integrator: mi.Integrator, scene, rays, sampler) -> PathTracerWalk:
+    """The camera walk of a pass whose budget is path tracing (light_paths 0), run by
+    Mitsuba's own ``path`` integrator on the pass's camera rays: its megakernel costs
+    ~0.8x this engine's s <= 1 walk, and the estimator is the same (next-event
+    estimation and BSDF sampling, power heuristic), so the image stays unbiased.
+    Only in scenes without media (``path`` ignores them)."""
+    n = dr.width(rays.pixel)
+    radiance, valid, _ = integrator.sample(scene, sampler, rays.ray, None, dr.ones(mi.Bool, n))
+    return PathTracerWalk(radiance=mi.Spectrum(radiance * rays.weight), hit=mi.Bool(valid),
+                          rays=dr.zeros(mi.UInt32, n), slot=dr.zeros(mi.UInt32, n),
+                          specular_z1=dr.zeros(mi.Bool, n))
+
+
 def _camera_vertex_mis(ctx, state: PathState, v, flight):
     """The MIS chains at z_j, in area measure."""
     cos_in, _ = v.cosine(state.ray.d)

@@ -12,7 +12,7 @@ import mitsuba as mi
 import bdpt_drjit
 from bdpt_drjit.budgets import Budget
 from bdpt_drjit.optimizer import DARK, Costs, Pilot, candidates, decide, squared_mean
-from conftest import external, mitsuba_render, scene_path
+from conftest import ROOT, external, mitsuba_render, scene_path
 from stats import assert_statistically_equal
 
 pytestmark = pytest.mark.auto_budget
@@ -46,6 +46,28 @@ def test_path_tracing_behind_a_glass_pane():
     budget, res = _decision(scene, max_depth=8)
     assert budget.light_ratio == 0, budget
     assert res.stats["budget"] == str(budget)
+
+
+@pytest.mark.parametrize("hide_emitters", [False, True])
+def test_mitsuba_path_renders_what_the_pilot_path_traces(hide_emitters):
+    """Where the pilot chooses path tracing, the passes after it run Mitsuba's path on
+    the engine's camera rays: the image still agrees with Mitsuba's path (emitters
+    hidden or not), and the decision says who rendered it."""
+    scene = mi.load_file(scene_path("glass-pane.xml"), resx=16, resy=16)
+    res = [bdpt_drjit.render(scene, spp=64, seed=s, max_depth=6, hide_emitters=hide_emitters)
+           for s in range(8)]
+    assert all(r.stats["budget"] == "light_paths=0 connections=0" for r in res)
+    assert res[0].stats["path_tracer_spp"] > 32 and "Mitsuba's path" in res[0].stats["decision"]
+    ref = [mitsuba_render(scene, "path", 256, seed=400 + s, max_depth=6, hide_emitters=hide_emitters)
+           for s in range(8)]
+    assert_statistically_equal([r.image for r in res], ref, what="delegated path tracing")
+
+
+def test_media_keep_the_engine_path_tracer():
+    """Mitsuba's path ignores media: with a medium the engine's own walk path-traces."""
+    scene = mi.load_file(str(ROOT / "scenes" / "media" / "fog-cube.xml"), resx=16, resy=16)
+    r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=32, seed=1)
+    assert r.pilot is not None and r._path_tracer is None
 
 
 def test_light_subpaths_for_a_point_caustic():
