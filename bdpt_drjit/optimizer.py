@@ -59,7 +59,7 @@ def candidates(spectral: bool, light_image: bool = True) -> list[Budget]:
         out += [Budget(r, 0), Budget(r, "all")] + [Budget(r, m) for m in CACHE_PICKS]
     if light_image:
         out.append(Budget(ratios[-1], 0, True))
-    if not light_image:
+    else:
         # Light subpaths then serve connections alone: a budget with light subpaths and
         # no connections would be path tracing that pays for light walks.
         out = [b for b in out if b.light_ratio == 0 or b.connects]

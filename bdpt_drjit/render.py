@@ -438,7 +438,8 @@ class Renderer:
         stored vertices, no moment bookkeeping: the BDPT pilot's walk has both), over
         one light subpath per lane of the path-tracing pilot pass.  Its splats are
         thrown away: the pass's camera walk used path tracing's weights."""
-        ctx = self._context(index, rays, sampler, lanes, spp, (Budget(1.0, 0), self.settings.mis, False))
+        rules = (Budget(1.0, 0), self.settings.mis, False)
+        ctx = self._context(index, rays, sampler, lanes, spp, rules)
         if ctx.light_count == 0:
             return 0.0
         timer.lap()
@@ -448,10 +449,12 @@ class Renderer:
     def _pilot_pass(self, index, ctx, store, cam, light_seconds, camera_seconds, lanes):
         """Record a pilot pass's costs; after the last one, choose the budget."""
         stored = 0 if store is None else store.vertices.size()
-        # The camera rays a light_first_hits budget would still trace: z_1's, and every
-        # ray of a lane that went on from z_1 through a delta lobe.
-        kept = dr.sum(dr.select(cam.specular_z1, cam.rays, dr.minimum(cam.rays, 1)))
-        share = float(kept[0]) / max(float(dr.sum(cam.rays)[0]), 1.0)
+        share = 1.0
+        if index == 0:
+            # The camera rays a light_first_hits budget would still trace: z_1's, and
+            # every ray of a lane that went on from z_1 through a delta lobe.
+            kept = dr.sum(dr.select(cam.specular_z1, cam.rays, dr.minimum(cam.rays, 1)))
+            share = float(kept[0]) / max(float(dr.sum(cam.rays)[0]), 1.0)
         self.pilot.record(index, light_seconds, camera_seconds, lanes, ctx.light_count, stored,
                           share)
         if ctx.moments is not None:
