@@ -112,6 +112,37 @@ def test_costs_come_from_the_walks_that_budgets_run():
     assert c.of(Budget(1.0, 0, True)) == 0.5 + 2.0
 
 
+def test_the_decision_compiles_nothing_and_reruns_no_walk(box):
+    """The decision of a second render (new seed, so a new kappa) launches only its own
+    small kernels, all from the cache.  It used to read the pilot's slot counts after
+    the camera walk had run, which ran the whole walk again (~1700 operations, 23 ms at
+    256x256), and to bake kappa into a reduction kernel compiled anew each time."""
+    import drjit as dr
+    from bdpt_drjit import optimizer
+    seen = []
+    original = optimizer.MomentSamples.relative_moments
+
+    def spy(self, *args):
+        dr.sync_thread()
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+            dr.kernel_history()
+            out = original(self, *args)
+            seen.extend(e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT)
+        return out
+
+    for seed in (1, 2):
+        seen.clear()
+        optimizer.MomentSamples.relative_moments = spy
+        try:
+            r = sys.modules["bdpt_drjit.render"].Renderer(box, spp=32, seed=seed, max_depth=5)
+            for _ in range(Pilot.PASSES):
+                r.run_pass()
+        finally:
+            optimizer.MomentSamples.relative_moments = original
+    assert seen and max(e["operation_count"] for e in seen) < 500
+    assert all(e["cache_hit"] for e in seen)
+
+
 def test_connections_in_veach_bidirectional_room():
     path = external("veach-bidir", "scene.xml")
     from benchmarks.scenes import SCENES
