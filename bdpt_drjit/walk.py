@@ -224,7 +224,8 @@ class PathTracerWalk:
 def path_tracer_walk(integrator: mi.Integrator, scene, rays, sampler) -> PathTracerWalk:
     """The camera walk of a pass whose budget is path tracing (light_paths 0), run by
     Mitsuba's own ``path`` integrator on the pass's camera rays: its megakernel costs
-    ~0.8x this engine's s <= 1 walk, and the estimator is the same (next-event
+    0.87x this engine's s <= 1 walk (525 against 605 ms of kernel time on the glass
+    pane, 128x128, 256 spp), and the estimator is the same (next-event
     estimation and BSDF sampling, power heuristic), so the image stays unbiased.
     Only in scenes without media (``path`` ignores them)."""
     n = dr.width(rays.pixel)
