@@ -88,6 +88,14 @@ class CameraModel:
         y = dr.clip(mi.Int32(dr.floor(uv.y)), 0, mi.Int32(self.resolution.y) - 1)
         return mi.UInt32(y * mi.Int32(self.resolution.x) + x)
 
+    def grid_index(self, uv: mi.Point2f) -> mi.UInt32:
+        """The index in sample_rays' pixel grid (crop window plus any sampled filter
+        border) of the pixel holding a film position of the crop window."""
+        film = self.sensor.film()
+        border = film.rfilter().border_size() if film.sample_border() else 0
+        grid = mi.Vector2i(dr.floor(uv)) + dr.opaque(mi.Int32, border)
+        return mi.UInt32(grid.y * dr.opaque(mi.Int32, int(film_grid(film)[0])) + grid.x)
+
     def origin(self, ray: mi.Ray3f, aperture: mi.Point2f) -> mi.Point3f:
         """z_0 of a primary ray made from the aperture sample ``aperture``."""
         raise NotImplementedError

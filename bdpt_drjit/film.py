@@ -11,7 +11,9 @@ by the weight channel, so they need separate image blocks:
   splats its values times N_C / N_L, and the light block is normalized at the end by
   W*H / (camera samples): with N_L = N_C this is Mitsuba's ``ptracer``
   normalization, and passes with different budgets combine as their camera samples
-  do.
+  do.  A pass over every other pixel (the pilot, optimizer.py) keeps the splats
+  that land in its own pixels, times 2: each pixel's light image then has the
+  rate, and the MIS weights, of the camera samples it is combined with.
 
 These puts run after the walks, in kernels of their own, so that the walks'
 kernels never hold the film's size.  Per-strategy images (on request) have a layer
@@ -77,11 +79,12 @@ class FilmAccumulator:
         base = [mi.Float(0.0)] * (self.base_channels - 1) + [mi.Float(1.0)]   # weight last
         self.aov.put(rays.pos, base + values)
 
-    def put_splats(self, splats, count: int, wavelengths, scale: float, layer_of=None):
-        """The light image's splats of a pass (``splats``: the pool's items), times
-        ``scale`` = N_C / N_L of the pass.  Light subpath l has the wavelengths of
-        camera lane l mod N_C."""
-        active = dr.arange(mi.UInt32, dr.width(splats.s)) < dr.opaque(mi.UInt32, count)
+    def put_splats(self, splats, count: int, wavelengths, scale: float, keep: mi.Bool,
+                   layer_of=None):
+        """The light image's splats of a pass (``splats``: the pool's items) where
+        ``keep``, times ``scale`` = N_C / N_L of the pass (over the share of the film
+        kept).  Light subpath l has the wavelengths of camera lane l mod N_C."""
+        active = keep & (dr.arange(mi.UInt32, dr.width(splats.s)) < dr.opaque(mi.UInt32, count))
         pos = splats.pos + mi.Vector2f(self.light.offset())
         home = splats.lane % dr.opaque(mi.UInt32, dr.width(wavelengths))
         wl = dr.gather(type(wavelengths), wavelengths, home, active)

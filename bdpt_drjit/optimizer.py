@@ -1,13 +1,18 @@
 """Efficiency-aware budgets (Grittmann, Yazici, Georgiev, Slusallek 2022): choose the
 budget (budgets.py) whose cost times summed relative second moment is smallest.
 
-The pilot.  Two passes of one sample per pixel open a render whose budget is "auto":
-a path-tracing pass (light_paths 0), then a full BDPT pass (light_paths 1,
-connections "all") with the balance heuristic, in which every contribution also
-reports its balance weight split into three groups of strategies: path tracing
-(s <= 1), the light image (t = 1) and connections (u_pt + u_lt + u_con = 1; the two
-ends of the ratio chains isolate u_pt and u_lt, walk.PathState.d_end).  Both passes
-are part of the image.
+The pilot.  Two passes open a render whose budget is "auto", each over every other
+pixel (render.Renderer._plan_pilot): light tracing with path tracing (light_paths 1,
+connections 0) on the even pixels, then full BDPT (light_paths 1, connections "all")
+with the balance heuristic on the odd ones, in which every contribution also reports
+its balance weight split into three groups of strategies: path tracing (s <= 1), the
+light image (t = 1) and connections (u_pt + u_lt + u_con = 1; the two ends of the
+ratio chains isolate u_pt and u_lt, walk.PathState.d_end).  Each pass keeps the splats
+that land in its own pixels (film.py), so both are complete MIS estimators of their
+pixels and part of the image.  (Path tracing alone on the even pixels, with both
+passes' light images over every pixel at half their rate, was biased: a point-light
+caustic, which path tracing cannot render, came out of the pilot at half its
+brightness, 3% of a 16-spp render.)
 
 Second moments.  The balance-heuristic combination of a candidate c, whose rates are
 1, r_c and kappa_c for the three groups (mis.py), has second moment
@@ -16,17 +21,18 @@ F = f / P_pilot estimates it as F^2 P_pilot / P_c = F^2 / (u_pt + r_c u_lt + kap
 (the paper's reweighting by the ratio of balance sums).  A path only light subpaths
 can sample (u_pt = 0) makes path tracing's moment infinite: it is never chosen where
 it would miss light.  Each pixel's moment is divided by its squared mean (the pilot
-image, box-filtered) and the sum over pixels is the candidate's relative error.
+image, box-filtered, without the sample itself: PilotMeans) and the sum over pixels is
+the candidate's relative error.
 
 Costs come from this engine's own kernel times in the pilot (no constants fitted to
-another renderer): seconds per camera sample of path tracing (the first pass), per
-light subpath (a light walk without connections, timed beside the first pass and
-thrown away), for storing a light subpath's vertices (the rest of the BDPT pass's
-light walk), and per camera sample for connecting to a whole light subpath; a
-vertex cache of M costs M / (stored vertices per light subpath) of the latter.
-Timing the light walk inside the BDPT pass alone made light subpaths look twice as
-dear as they are to budgets without connections (the point-light caustic: 1.4e-7 s
-against 0.7e-7 s measured by rendering).
+another renderer): seconds per camera sample of a walk without connections and per
+light subpath of a light walk without them (the first pass), for storing a light
+subpath's vertices (the rest of the BDPT pass's light walk), and per camera sample
+for connecting to a whole light subpath; a vertex cache of M costs M / (stored
+vertices per light subpath) of the latter.  Timing the light walk inside the BDPT
+pass alone made light subpaths look twice as dear as they are to budgets without
+connections (the point-light caustic: 1.4e-7 s against 0.7e-7 s measured by
+rendering).
 """
 from __future__ import annotations
 
@@ -98,11 +104,11 @@ class MomentSamples:
                    lane * self.SLOTS + slot, ok)
         return slot + dr.select(ok, 1, 0)
 
-    def relative_moments(self, rates: np.ndarray, mean2: mi.Float, splats=None) -> np.ndarray:
+    def relative_moments(self, rates: np.ndarray, means: "PilotMeans", splats=None) -> np.ndarray:
         """Per candidate (rows of ``rates``: r, kappa, light_first_hits), the second
         moment of its balance estimator relative to each pixel's squared mean
-        ``mean2``, summed over these samples and the pass's splats (a ``MomentSample``
-        of them, with its validity).
+        (``means``), summed over these samples and the pass's splats (a
+        ``MomentSample`` of them, with its validity).
 
         A light_first_hits candidate samples a path whose z_1 is smooth by the light
         image alone, and any other path as its base budget (r, kappa) does.  The light
@@ -117,7 +123,7 @@ class MomentSamples:
             if dr.width(keep) == 0:
                 continue
             s = gather(items, keep)
-            relative = f64(s.f2 / dr.gather(mi.Float, mean2, s.pixel))
+            relative = f64(s.f2 / means.squared(s.pixel, dr.sqrt(s.f2)))
             u_pt, u_lt = f64(s.u_pt), f64(s.u_lt)
             u_con = dr.maximum(1.0 - u_pt - u_lt, 0.0)
             # A share of 0: the candidate cannot sample this path (infinite moment).
@@ -136,6 +142,55 @@ class MomentSamples:
             dr.eval(parts)
             sums += np.array([float(p[0]) for p in parts])
         return sums
+
+
+# Relative moments divide by max(mean^2, DARK * image mean^2): a pixel darker than
+# a tenth of the image's mean weighs as if it were that bright.  Relative error in a
+# near-black pixel is invisible once the image is tone-mapped, and so it is in the
+# benchmarks' relative MSE (mean^2 + 0.01).  With 1e-4 the point-light caustic's
+# shadow (blurred mean ~0.003 against 0.4) outweighed the caustic and the direct
+# light: it chose 1 light subpath per sample where 2 render it 1.3x faster.
+DARK = 1e-2
+
+
+@dataclass
+class PilotMeans:
+    """The pilot image's pixel means, which relative moments divide by: box-filtered
+    (radius BLUR), with each sample's own part taken out (leave one out), floored.
+
+    A mean estimated from the same samples as the moment correlates with it: where
+    samples are sparse (light-image splats in a dim caustic, fireflies), a sample that
+    lands there is most of its own pixel's mean, and F^2 / mean^2 comes out small
+    exactly when F is large.  On the point-light caustic that bias made the summed
+    moment 27x too small, and the decision ignored the noise that dominates there."""
+    blurred: mi.Float       # luminance per pixel, box-filtered
+    own: mi.Float           # a sample's weight in its own pixel's blurred mean
+    floor: float            # DARK x the image mean^2
+
+    @classmethod
+    def of(cls, image: np.ndarray, spp: int) -> "PilotMeans":
+        """From the pilot image's luminance (H, W) after ``spp`` camera samples per
+        pixel: each sample is 1 / spp of its pixel (splats too: film.py's light image
+        normalization), and a pixel is counts_x x counts_y / (2 BLUR + 1)^2 of its own
+        blurred value (1 + BLUR times on the film's edge, which the filter extends)."""
+        h, w = image.shape
+        k = 2 * BLUR + 1
+        own = np.outer(_self_counts(h), _self_counts(w)) / (k * k * max(spp, 1))
+        return cls(blurred=mi.Float(_blur(image).ravel().astype(np.float32)),
+                   own=mi.Float(own.ravel().astype(np.float32)),
+                   floor=DARK * max(float(np.mean(image)) ** 2, 1e-12))
+
+    def squared(self, pixel: mi.UInt32, value: mi.Float) -> mi.Float:
+        """The squared mean a sample of luminance ``value`` at ``pixel`` divides by."""
+        mean = dr.gather(mi.Float, self.blurred, pixel) - value * dr.gather(mi.Float, self.own, pixel)
+        return dr.maximum(dr.square(dr.maximum(mean, 0.0)), dr.opaque(mi.Float, self.floor))
+
+
+def _self_counts(n: int) -> np.ndarray:
+    """How often index i appears in its own window of radius BLUR over an axis of n
+    extended by its edge values."""
+    i = np.arange(n)
+    return 1 + BLUR * ((i == 0).astype(int) + (i == n - 1))
 
 
 @dataclass
@@ -172,21 +227,6 @@ class Decision:
         return "chose %s (%s)" % (self.budget, "; ".join(rows))
 
 
-# Relative moments divide by max(mean^2, DARK * image mean^2): a pixel darker than
-# a tenth of the image's mean weighs as if it were that bright.  Relative error in a
-# near-black pixel is invisible once the image is tone-mapped, and so it is in the
-# benchmarks' relative MSE (mean^2 + 0.01).  With 1e-4 the point-light caustic's
-# shadow (blurred mean ~0.003 against 0.4) outweighed the caustic and the direct
-# light: it chose 1 light subpath per sample where 2 render it 1.3x faster.
-DARK = 1e-2
-
-
-def squared_mean(mean: np.ndarray) -> np.ndarray:
-    """The pilot's mean image, box-filtered and squared, with the floor above
-    (relative moments divide by it)."""
-    return np.maximum(np.square(_blur(mean)), DARK * max(float(np.mean(mean)) ** 2, 1e-12))
-
-
 def decide(cands: list[Budget], relative: np.ndarray, costs: Costs) -> Decision:
     """The candidate of least cost x summed relative second moment."""
     rows = []
@@ -220,37 +260,38 @@ class Pilot:
 
     def __init__(self, spectral: bool, light_image: bool = True):
         self.candidates = candidates(spectral, light_image)
+        self.light_image = light_image
         self.costs = Costs()
         self.decision: Decision | None = None
-        self._path_camera = 0.0          # seconds per sample of the path-tracing pass
+        self._path_camera = 0.0          # seconds per sample of the first pass
 
-    @staticmethod
-    def budget(index: int):
-        """(budget, heuristic, with moments) of pilot pass ``index``."""
+    def budget(self, index: int):
+        """(budget, heuristic, with moments) of pilot pass ``index``: light tracing with
+        path tracing (path tracing alone without a light image), then full BDPT."""
         if index == 0:
-            return Budget(0.0, 0), None, False
+            return Budget(1.0 if self.light_image else 0.0, 0), None, False
         return Budget(1.0, "all"), "balance", True
 
     def record(self, index: int, light_seconds: float, camera_seconds: float, lanes: int,
                light_subpaths: int, stored: int, first_hit_share: float = 1.0) -> None:
         """Kernel times of a pilot pass's walks (compilation excluded)."""
-        if index == 0:     # light_seconds: the timing walk of budgets without connections
+        if index == 0:
             self._path_camera = camera_seconds / lanes
             self.costs.path_per_sample = self._path_camera
             self.costs.first_hit_share = first_hit_share
-            self.costs.light_per_path = light_seconds / lanes
+            self.costs.light_per_path = light_seconds / max(light_subpaths, 1)
             return
         self.costs.store_per_path = max(light_seconds / max(light_subpaths, 1)
                                         - self.costs.light_per_path, 0.0)
         self.costs.connect_per_sample = max(camera_seconds / lanes - self._path_camera, 0.0)
         self.costs.stored_per_path = stored / max(light_subpaths, 1)
 
-    def decide(self, samples: MomentSamples, splats, mean: np.ndarray) -> Decision:
+    def decide(self, samples: MomentSamples, splats, mean: np.ndarray, spp: int) -> Decision:
         """The budget for the rest of the render, from the BDPT pilot's samples and the
-        image of both pilot passes (its luminance, (H, W))."""
+        image of both pilot passes (its luminance, (H, W), after ``spp`` camera samples
+        per pixel)."""
         rates = np.array([[b.light_ratio, b.kappa(1, self.costs.stored_per_path),
                            float(b.light_first_hits)] for b in self.candidates])
-        mean2 = mi.Float(squared_mean(mean).ravel().astype(np.float32))
-        relative = samples.relative_moments(rates, mean2, splats)
+        relative = samples.relative_moments(rates, PilotMeans.of(mean, spp), splats)
         self.decision = decide(self.candidates, relative, self.costs)
         return self.decision

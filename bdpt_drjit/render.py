@@ -284,10 +284,10 @@ class Renderer:
         self.kernel_history = []        # kernels the pilot's timing took from Dr.Jit's history
 
     def _plan_pilot(self, max_lanes: int) -> None:
-        """An "auto" budget: the render opens with one round of pilot passes, path
-        tracing on the even pixels and BDPT on the odd ones (optimizer.py), so that
-        every pixel has the same samples after them and the pilot costs half a BDPT
-        round; then the rest of the samples."""
+        """An "auto" budget: the render opens with one round of pilot passes, light and
+        path tracing on the even pixels and BDPT on the odd ones (optimizer.py), so
+        that every pixel has the same samples after them and the pilot costs half a
+        BDPT round; then the rest of the samples."""
         self.pilot = Pilot(mi.is_spectral,
                            self.camera.light_image_possible and self.settings.light_image)
         if self.settings.first_hits != "auto":
@@ -364,12 +364,12 @@ class Renderer:
     def _pass_rules(self, index: int):
         """(budget, heuristic, moment samples or None) of pass ``index``."""
         if self.pilot is not None and index < Pilot.PASSES:
-            budget, heuristic, moments = Pilot.budget(index)
+            budget, heuristic, moments = self.pilot.budget(index)
             return budget, heuristic or self.settings.mis, moments
         return self.budget, self.settings.mis, False
 
-    def _context(self, index, rays, sampler, lanes: int, spp: int, rules=None) -> PassContext:
-        budget, heuristic, moments = rules or self._pass_rules(index)
+    def _context(self, index, rays, sampler, lanes: int, spp: int) -> PassContext:
+        budget, heuristic, moments = self._pass_rules(index)
         strategies, weights = self._rules(budget, heuristic)
         n_light = budget.light_subpaths(lanes) if strategies.max_light_vertices() != -1 else 0
         # MIS rates of the pass: a vertex cache's kappa from the stored vertices per light
@@ -420,8 +420,11 @@ class Renderer:
         if self.aovs is not None:
             self.film.put_aovs(rays, self.aovs.values(rays.ray))
         if store is not None:
+            stride = self._stride.get(index, 1)
+            keep = (self.camera.grid_index(store.splats.items.pos) % dr.opaque(mi.UInt32, stride)
+                    == dr.opaque(mi.UInt32, pixel_offset % stride))
             self.film.put_splats(store.splats.items, store.splats.size(), ctx.wavelengths,
-                                 lanes / ctx.light_count,
+                                 lanes / ctx.light_count * stride, keep,
                                  None if ctx.images is None else ctx.images.layer_of)
         self.film.camera_samples += lanes
         if delegated:
@@ -429,22 +432,7 @@ class Renderer:
         else:
             self.rays += int(dr.sum(cam.rays)[0]) + int(dr.sum(light_rays)[0])
         if timer.on:
-            if index == 0:
-                light_seconds = self._time_light_walk(index, rays, sampler, lanes, spp, timer)
             self._pilot_pass(index, ctx, store, cam, light_seconds, camera_seconds, lanes)
-
-    def _time_light_walk(self, index, rays, sampler, lanes, spp, timer) -> float:
-        """Kernel seconds of the light walk that budgets without connections run (no
-        stored vertices, no moment bookkeeping: the BDPT pilot's walk has both), over
-        one light subpath per lane of the path-tracing pilot pass.  Its splats are
-        thrown away: the pass's camera walk used path tracing's weights."""
-        rules = (Budget(1.0, 0), self.settings.mis, False)
-        ctx = self._context(index, rays, sampler, lanes, spp, rules)
-        if ctx.light_count == 0:
-            return 0.0
-        timer.lap()
-        self._light_subpaths(ctx, index, spp)
-        return timer.lap()
 
     def _pilot_pass(self, index, ctx, store, cam, light_seconds, camera_seconds, lanes):
         """Record a pilot pass's costs; after the last one, choose the budget."""
@@ -460,7 +448,8 @@ class Renderer:
         if ctx.moments is not None:
             ctx.moments.count = cam.slot
             mean = self.tensor().numpy()[..., :3].mean(axis=-1)
-            self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean).budget
+            self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean,
+                                             self.plan[index][2]).budget
 
     def _light_subpaths(self, ctx, index: int, spp: int):
         """Stage 2; runs the light walk again with larger pools if one overflowed

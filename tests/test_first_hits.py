@@ -12,7 +12,7 @@ import pytest
 import mitsuba as mi
 import bdpt_drjit
 from bdpt_drjit.budgets import Budget
-from bdpt_drjit.optimizer import Costs, MomentSample, MomentSamples, candidates
+from bdpt_drjit.optimizer import Costs, MomentSample, MomentSamples, PilotMeans, candidates
 from conftest import ROOT, mitsuba_render, scene_path
 from stats import assert_statistically_equal
 
@@ -76,7 +76,7 @@ def test_moments_of_a_first_hit_candidate():
     samples.count = mi.UInt32([2])
     samples.SLOTS = 2
     rates = np.array([[2.0, 0.0, 0.0], [2.0, 0.0, 1.0]])
-    plain, first = samples.relative_moments(rates, mi.Float([1.0]))
+    plain, first = samples.relative_moments(rates, PilotMeans(mi.Float([1.0]), mi.Float([0.0]), 0.0))
     assert plain == pytest.approx(1.0 / (0.5 + 2 * 0.25) + 1.0)
     assert first == pytest.approx(1.0 / (2 * 0.25) + 1.0)
 
