@@ -175,8 +175,10 @@ class PilotMeans:
     def of(cls, image: np.ndarray, spp: int) -> "PilotMeans":
         """From the pilot image's luminance (H, W) after ``spp`` camera samples per
         pixel: each sample is 1 / spp of its pixel (splats too: film.py's light image
-        normalization), and a pixel is counts_x x counts_y / (2 BLUR + 1)^2 of its own
-        blurred value (1 + BLUR times on the film's edge, which the filter extends)."""
+        normalization; a wider pixel filter spreads that share over neighbours, almost
+        all inside the same blur window), and a pixel is counts_x x counts_y /
+        (2 BLUR + 1)^2 of its own blurred value (1 + BLUR times on the film's edge,
+        which the blur extends)."""
         h, w = image.shape
         k = 2 * BLUR + 1
         own = np.outer(_self_counts(h), _self_counts(w)) / (k * k * max(spp, 1))
