@@ -71,12 +71,13 @@ def test_moments_of_a_first_hit_candidate():
     """A pilot sample the light image can make (u_lt > 0) costs the candidate
     F^2 / (r u_lt); one it cannot (a delta z_1) costs what the base budget pays."""
     samples = MomentSamples(1)
-    samples.items = MomentSample(pixel=mi.UInt32([0, 0]), f2=mi.Float([1.0, 1.0]),
+    samples.items = MomentSample(pixel=mi.UInt32([0, 1]), f2=mi.Float([1.0, 1.0]),
                                  u_pt=mi.Float([0.5, 1.0]), u_lt=mi.Float([0.25, 0.0]))
     samples.count = mi.UInt32([2])
     samples.SLOTS = 2
     rates = np.array([[2.0, 0.0, 0.0], [2.0, 0.0, 1.0]])
-    plain, first = samples.relative_moments(rates, PilotMeans(mi.Float([1.0]), mi.Float([0.0]), 0.0))
+    means = PilotMeans(mi.Float([1.0, 1.0]), mi.Float([0.0, 0.0]), 0.0)
+    plain, first = samples.relative_moments(rates, means)
     assert plain == pytest.approx(1.0 / (0.5 + 2 * 0.25) + 1.0)
     assert first == pytest.approx(1.0 / (2 * 0.25) + 1.0)
 
