@@ -21,8 +21,8 @@ F = f / P_pilot estimates it as F^2 P_pilot / P_c = F^2 / (u_pt + r_c u_lt + kap
 (the paper's reweighting by the ratio of balance sums).  A path only light subpaths
 can sample (u_pt = 0) makes path tracing's moment infinite: it is never chosen where
 it would miss light.  Each pixel's moment is divided by its squared mean (the pilot
-image, box-filtered, without the sample itself: PilotMeans) and the sum over pixels is
-the candidate's relative error.
+image, box-filtered, without the sample itself: PilotMeans) and the sum over pixels,
+a firefly pixel left out (outliers), is the candidate's relative error.
 
 Costs come from this engine's own kernel times in the pilot (no constants fitted to
 another renderer): seconds per camera sample of a walk without connections and per
