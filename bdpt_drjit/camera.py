@@ -92,8 +92,7 @@ class CameraModel:
         """The index in sample_rays' pixel grid (crop window plus any sampled filter
         border) of the pixel holding a film position of the crop window."""
         film = self.sensor.film()
-        border = film.rfilter().border_size() if film.sample_border() else 0
-        grid = mi.Vector2i(dr.floor(uv)) + dr.opaque(mi.Int32, border)
+        grid = mi.Vector2i(dr.floor(uv)) + dr.opaque(mi.Int32, sampled_border(film))
         return mi.UInt32(grid.y * dr.opaque(mi.Int32, int(film_grid(film)[0])) + grid.x)
 
     def origin(self, ray: mi.Ray3f, aperture: mi.Point2f) -> mi.Point3f:
@@ -110,7 +109,7 @@ class CameraModel:
         sampled grid (crop window, plus the filter border if sampled), film sizes kept
         opaque."""
         sensor, film = self.sensor, self.sensor.film()
-        border = film.rfilter().border_size() if film.sample_border() else 0
+        border = sampled_border(film)
         grid_w = dr.opaque(mi.Int32, int(film_grid(film)[0]))
         idx = mi.Int32(dr.arange(mi.UInt32, n_pixels * spp) // dr.opaque(mi.UInt32, spp)
                        * dr.opaque(mi.UInt32, stride) + dr.opaque(mi.UInt32, pixel_offset))
@@ -293,9 +292,12 @@ def select_sensor(scene: mi.Scene, sensor) -> mi.Sensor:
     return sensor
 
 
+def sampled_border(film: mi.Film) -> int:
+    """Pixels of filter border sampled around the crop window (0 unless the film
+    samples its border)."""
+    return film.rfilter().border_size() if film.sample_border() else 0
+
+
 def film_grid(film: mi.Film):
     """Size of the sampled pixel grid (crop plus the filter border if sampled)."""
-    size = mi.ScalarVector2u(film.crop_size())
-    if film.sample_border():
-        size += 2 * film.rfilter().border_size()
-    return size
+    return mi.ScalarVector2u(film.crop_size()) + 2 * sampled_border(film)

@@ -420,6 +420,8 @@ class Renderer:
         if self.aovs is not None:
             self.film.put_aovs(rays, self.aovs.values(rays.ray))
         if store is not None:
+            # A pilot pass keeps the splats in its own pixels (film.py); the mask is
+            # computed for every pass, so that all passes share one film kernel.
             stride = self._stride.get(index, 1)
             keep = (self.camera.grid_index(store.splats.items.pos) % dr.opaque(mi.UInt32, stride)
                     == dr.opaque(mi.UInt32, pixel_offset % stride))
