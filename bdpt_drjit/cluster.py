@@ -183,8 +183,10 @@ def _load(job: Job):
         raise FileNotFoundError("the scene file %s is not in the folder shipped to it (%s)"
                                 % (job.scene, Path.cwd()))
     scene = mi.load_file(str(path), **job.params)
-    return Renderer(scene, sensor=job.sensor, spp=job.spp, seed=job.seed,
-                    strategy_images=job.strategy_images, **job.settings)
+    renderer = Renderer(scene, sensor=job.sensor, spp=job.spp, seed=job.seed,
+                        strategy_images=job.strategy_images, **job.settings)
+    renderer.redecide = False     # every worker renders the driver's plan, fixed before
+    return renderer               # the pilot
 
 
 class _Worker:

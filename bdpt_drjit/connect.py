@@ -127,7 +127,8 @@ def next_event(ctx, state, v, sample, active):
         state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, contrib, *mis.groups_nee(
             state.d_vcm, state.d_vc, state.d_end, state.depth == 1,
             dr.select(ds.delta, 0.0, bsdf_pdf_w / nee_pdf_w),
-            emission_pdf_aw * cos_cam / (nee_pdf_w * cos_light), bsdf_rev_w), active)
+            emission_pdf_aw * cos_cam / (nee_pdf_w * cos_light), bsdf_rev_w,
+            ctx.weights.rate(state.depth)), active)
     return contrib, rays
 
 
@@ -190,9 +191,11 @@ def _cached_vertices(ctx, store, state, v, connectible):
         position = (ctx.lane * picks + m + offset) % ctx.stored
         light = store.vertex(dr.gather(mi.UInt32, order, position, connectible), connectible)
         on = connectible & ctx.strategies.enabled(light.s, t)
-        c, traced, _ = connect_vertices(ctx, light, on, state, v)
-        radiance = ctx.strategies.add(ctx.images, radiance, ctx.lane, light.s, t,
-                                      c * ctx.connection_scale)
+        c, traced, groups = connect_vertices(ctx, light, on, state, v)
+        c = c * ctx.connection_scale
+        radiance = ctx.strategies.add(ctx.images, radiance, ctx.lane, light.s, t, c)
+        if groups is not None:            # a moment pass (optimizer.py)
+            state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, c, *groups, on)
         rays += traced
     return radiance, rays
 
@@ -230,5 +233,7 @@ def connect_vertices(ctx, light, active, cam, v_c):
     groups = None
     if ctx.moments is not None:
         groups = mis.groups_connect(light, light.s == 2, cam.d_vcm, cam.d_vc, cam.d_end,
-                                    cam.depth == 1, pdf_c_a, rev_c_w, pdf_l_a, rev_l_w)
+                                    cam.depth == 1, pdf_c_a, rev_c_w, pdf_l_a, rev_l_w,
+                                    weights.rate(light.s - 1), weights.rate(cam.depth),
+                                    weights.kappa)
     return contrib, rays, groups

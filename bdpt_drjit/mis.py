@@ -438,12 +438,15 @@ class Weights:
 # ---------------------------------------------------------------------------
 # The pilot's balance-weight groups (optimizer.py)
 # ---------------------------------------------------------------------------
-# In a pilot pass (balance heuristic, unit rates) each contribution also reports its
-# balance weight's denominator split into path tracing (s <= 1), the light image
-# (t = 1) and connections, as the shares (u_pt, u_lt) of the total.  The s <= 1 terms
-# of a light-side strategy and the t = 1 term of a camera-side one lie at the far
-# ends of the chains: one scalar per subpath, d_end, carries them (``end_after_*``);
-# at a subpath's first vertex they are the chain itself.
+# In a moment pass (balance heuristic; the pilot's rates are 1, a later one's are its
+# budget's) each contribution also reports its balance weight's denominator split into
+# path tracing (s <= 1), the light image (t = 1) and connections, as the shares
+# (u_pt, u_lt) of the total.  The s <= 1 terms of a light-side strategy and the t = 1
+# term of a camera-side one lie at the far ends of the chains: one scalar per
+# subpath, d_end, carries them (``end_after_*``); at a subpath's first vertex they are
+# the chain itself.  The totals are the weights' own, rates included (``m_vcm``: the
+# rate of the current vertex's d_vcm term; ``light_ratio``; ``kappa``): with the
+# rates left out, a pass without connections reported a share for them.
 
 def end_after_hit(d_end, dist2, cos_hit, first, dens_fwd=1.0, dens_rev=1.0):
     """d_end at the vertex just found: as d_vcm at the first vertex, as d_vc beyond."""
@@ -473,23 +476,28 @@ def groups_emission_hit(d_vcm, d_vc, d_end, from_pinhole, direct_pdf, emission_p
                    dr.select(from_pinhole, rival, emission_pdf * d_end), total)
 
 
-def groups_nee(d_vcm, d_vc, d_end, first, w_light, camera_ratio, bsdf_rev_w):
-    total = w_light + 1.0 + camera_ratio * (d_vcm + d_vc * bsdf_rev_w)
+def groups_nee(d_vcm, d_vc, d_end, first, w_light, camera_ratio, bsdf_rev_w, m_vcm=1.0):
+    total = w_light + 1.0 + camera_ratio * (m_vcm * d_vcm + d_vc * bsdf_rev_w)
     lt = camera_ratio * dr.select(first, d_end, d_end * bsdf_rev_w)
     return _shares(w_light + 1.0, lt, total)
 
 
-def groups_light_image(d_vcm, d_vc, d_end, first, cam_pdf_a, bsdf_rev_w):
-    chain = d_vcm + d_vc * bsdf_rev_w
+def groups_light_image(d_vcm, d_vc, d_end, first, cam_pdf_a, bsdf_rev_w, light_ratio=1.0,
+                       m_vcm=1.0):
+    """``cam_pdf_a`` unscaled: the light image's rate divides it, as in its weight."""
+    cam_pdf_a = cam_pdf_a / light_ratio
+    chain = m_vcm * d_vcm + d_vc * bsdf_rev_w
     pt = cam_pdf_a * dr.select(first, chain, d_end * bsdf_rev_w)
     return _shares(pt, 1.0, 1.0 + cam_pdf_a * chain)
 
 
 def groups_connect(light, light_first, cam_d_vcm, cam_d_vc, cam_d_end, cam_first,
-                   cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w):
-    light_chain = light.d_vcm + light.d_vc * light_bsdf_rev_w
-    total = (1.0 + cam_bsdf_pdf_a * light_chain
-             + light_bsdf_pdf_a * (cam_d_vcm + cam_d_vc * cam_bsdf_rev_w))
+                   cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w,
+                   m_light_vcm=1.0, m_cam_vcm=1.0, kappa=1.0):
+    """Relative to the connection's own density kappa p (``weight_connect``)."""
+    light_chain = m_light_vcm * light.d_vcm + light.d_vc * light_bsdf_rev_w
+    total = kappa + (cam_bsdf_pdf_a * light_chain
+                     + light_bsdf_pdf_a * (m_cam_vcm * cam_d_vcm + cam_d_vc * cam_bsdf_rev_w))
     pt = cam_bsdf_pdf_a * dr.select(light_first, light_chain, light.d_end * light_bsdf_rev_w)
     lt = light_bsdf_pdf_a * dr.select(cam_first, cam_d_end, cam_d_end * cam_bsdf_rev_w)
     return _shares(pt, lt, total)

@@ -24,6 +24,17 @@ it would miss light.  Each pixel's moment is divided by its squared mean (the pi
 image, box-filtered, without the sample itself: PilotMeans) and the sum over pixels,
 a firefly pixel left out (outliers), is the candidate's relative error.
 
+Re-decisions.  The passes after the pilot end at 4, 16 and 64 times its spp
+(render.Renderer._plan_rounds); the last before each is a moment pass of the budget
+being rendered, with the balance heuristic at that budget's rates (r_B, kappa_B), its
+camera side recorded on one lane in 2 x spp (the pilot's memory).  Its shares are of
+P_B, so P_c / P_B = u_pt + (r_c / r_B) u_lt + (kappa_c / kappa_B) u_con: that gives
+every candidate whose strategy groups have a positive rate in the budget (``covers``),
+and a light image splat counts as value / r_B per camera sample.  Each candidate's
+moment per camera sample is averaged over the moment passes so far, and the means are
+the whole image's so far.  After path tracing there is nothing to re-decide from: its
+samples give no light subpath's density.
+
 Costs come from this engine's own kernel times in the pilot (no constants fitted to
 another renderer): seconds per camera sample of a walk without connections and per
 light subpath of a light walk without them (the first pass), for storing a light
@@ -86,34 +97,39 @@ class MomentSample:
 
 
 class MomentSamples:
-    """A pilot pass's contributions.  Camera-side ones go to SLOTS slots per camera
-    lane, counted in the walk's state (no atomics; more are dropped); light-image
-    ones travel in the splat records (vertices.Splat's u_pt, u_lt)."""
+    """A moment pass's contributions.  Camera-side ones go to SLOTS slots per
+    recorded camera lane, counted in the walk's state (no atomics; more are dropped):
+    every lane of the pilot, every ``every``-th lane of a later pass (its memory stays
+    the pilot's); light-image ones travel in the splat records (vertices.Splat's u_pt,
+    u_lt)."""
 
     SLOTS = 32
 
-    def __init__(self, lanes: int):
-        self.lanes = lanes
-        self.items = empty(MomentSample, lanes * self.SLOTS)
+    def __init__(self, lanes: int, every: int = 1):
+        self.lanes, self.every = lanes, every
+        self.items = empty(MomentSample, -(-lanes // every) * self.SLOTS)
         self.count = dr.zeros(mi.UInt32, lanes)           # slots used, per lane
+        self._every = dr.opaque(mi.UInt32, every)
         dr.make_opaque(self.items, self.count)
 
     def add(self, slot, lane, pixel, value, u_pt, u_lt, active):
         """Record a camera-side contribution in the lane's next slot; returns the slot
         count."""
         lum = dr.mean(mi.unpolarized_spectrum(value))   # RGB / spectral / mono alike
-        ok = active & (lum != 0) & (slot < self.SLOTS)
+        ok = active & (lum != 0) & (slot < self.SLOTS) & (lane % self._every == 0)
         dr.scatter(self.items, MomentSample(pixel=mi.UInt32(pixel), f2=mi.Float(dr.square(lum)),
                                             u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt)),
-                   lane * self.SLOTS + slot, ok)
+                   lane // self._every * self.SLOTS + slot, ok)
         return slot + dr.select(ok, 1, 0)
 
-    def relative_moments(self, rates: np.ndarray, means: "PilotMeans", splats=None) -> np.ndarray:
-        """Per candidate (rows of ``rates``: r, kappa, light_first_hits), the second
-        moment of its balance estimator relative to each pixel's squared mean
-        (``means``), summed over these samples and the pass's splats (a
-        ``MomentSample`` of them, with its validity), outlier pixels left out
-        (``outliers``).
+    def relative_moments(self, rates: np.ndarray, means: "PilotMeans", splats=None,
+                         splat_weight: float = 1.0) -> np.ndarray:
+        """Per candidate (rows of ``rates``: r, kappa, light_first_hits, each relative
+        to the pass's own rates), the second moment of its balance estimator relative
+        to each pixel's squared mean (``means``), summed over these samples (times
+        ``every``) and the pass's splats (a ``MomentSample`` of them, with its
+        validity; times ``splat_weight``), outlier pixels left out (``outliers``): an
+        estimate of the sum over the pass's camera samples.
 
         A light_first_hits candidate samples a path whose z_1 is smooth by the light
         image alone, and any other path as its base budget (r, kappa) does.  The light
@@ -121,13 +137,14 @@ class MomentSamples:
         term is 0), which tells the two kinds apart without a flag per sample."""
         f64 = dr.float64_array_t(mi.Float)
         groups = []                 # per kind of sample: (relative F^2, u_pt, u_lt, pixel)
-        for items, valid in [(self._camera_side(), None)] + ([] if splats is None else [splats]):
+        kinds = [(self._camera_side(), None, self.every)]
+        for items, valid, weight in kinds + ([] if splats is None else [(*splats, splat_weight)]):
             if valid is not None:
                 items = gather(items, dr.compress(valid))  # the recorded samples only
             if dr.width(items.f2) == 0:
                 continue
-            groups.append((f64(items.f2 / means.squared(items.pixel, dr.sqrt(items.f2))),
-                           f64(items.u_pt), f64(items.u_lt), items.pixel))
+            relative = items.f2 / means.squared(items.pixel, dr.sqrt(items.f2))
+            groups.append((f64(relative * weight), f64(items.u_pt), f64(items.u_lt), items.pixel))
         dropped = outliers(groups, dr.width(means.blurred))
         sums = np.zeros(len(rates))
         for relative, u_pt, u_lt, pixel in groups:
@@ -152,8 +169,8 @@ class MomentSamples:
 
     def _camera_side(self) -> MomentSample:
         """The recorded camera-side samples (the slots each lane used)."""
-        idx = dr.arange(mi.UInt32, self.lanes * self.SLOTS)
-        live = idx % self.SLOTS < dr.gather(mi.UInt32, self.count, idx // self.SLOTS)
+        idx = dr.arange(mi.UInt32, dr.width(self.items.f2))
+        live = idx % self.SLOTS < dr.gather(mi.UInt32, self.count, idx // self.SLOTS * self._every)
         return gather(self.items, dr.compress(live))
 
 
@@ -264,6 +281,18 @@ class Costs:
         return cost
 
 
+def covers(current: Budget, candidate: Budget) -> bool:
+    """Whether balance weights of ``current``'s samples give ``candidate``'s balance
+    sum (optimizer docstring): every group of strategies the candidate uses has a
+    positive rate in ``current``, and a light_first_hits ``current`` lacks path
+    tracing's density at smooth first hits, which every other candidate needs."""
+    if candidate.light_ratio > 0 and current.light_ratio <= 0:
+        return False
+    if candidate.connects and not current.connects:
+        return False
+    return candidate.light_first_hits or not current.light_first_hits
+
+
 @dataclass
 class Decision:
     budget: Budget
@@ -310,7 +339,11 @@ class Pilot:
         self.candidates = candidates(spectral, light_image)
         self.light_image = light_image
         self.costs = Costs()
-        self.decision: Decision | None = None
+        self.decision: Decision | None = None     # the latest
+        self.first: Decision | None = None        # the pilot's
+        self.rounds: list = []                    # (spp, budget) of each re-decision
+        self.moments: dict = {}                   # candidate: (sum of estimates x
+                                                  # recorded samples, recorded samples)
         self._path_camera = 0.0          # seconds per sample of the first pass
 
     def budget(self, index: int):
@@ -338,8 +371,37 @@ class Pilot:
         """The budget for the rest of the render, from the BDPT pilot's samples and the
         image of both pilot passes (its luminance, (H, W), after ``spp`` camera samples
         per pixel)."""
-        rates = np.array([[b.light_ratio, b.kappa(1, self.costs.stored_per_path),
-                           float(b.light_first_hits)] for b in self.candidates])
-        relative = samples.relative_moments(rates, PilotMeans.of(mean, spp), splats)
-        self.decision = decide(self.candidates, relative, self.costs)
+        self.decision = self._decide(self.candidates, samples, splats, mean, spp,
+                                     (1.0, 1.0), 1.0)
+        self.first = self.decision
         return self.decision
+
+    def redecide(self, samples: MomentSamples, splats, mean: np.ndarray, spp: float,
+                 budget: Budget, rates: tuple) -> Decision:
+        """A decision after a later moment pass (``Renderer._plan_rounds``), which
+        rendered ``budget`` with the balance heuristic at MIS ``rates`` (N_L / N_C,
+        kappa): among the candidates whose balance sums that pass's samples give
+        (``covers``), with each candidate's moment averaged over every moment pass so
+        far.  The image's means are the whole render's so far (``spp`` per pixel).
+        Each of the pass's light subpaths contributes value / r (N_C / N_L times its
+        splat) per camera sample, hence ``splat_weight`` 1 / r^2."""
+        cands = [c for c in self.candidates if covers(budget, c)]
+        self.decision = self._decide(cands, samples, splats, mean, spp, rates,
+                                     1.0 / rates[0] ** 2)
+        self.rounds.append((spp, self.decision.budget))
+        return self.decision
+
+    def _decide(self, cands, samples, splats, mean, spp, rates, splat_weight) -> Decision:
+        """Per candidate, the relative moment summed over pixels per camera sample of
+        this pass, averaged with earlier passes' by their recorded camera samples."""
+        r, k = rates
+        rows = np.array([[c.light_ratio / r, c.kappa(1, self.costs.stored_per_path) / k if k
+                          else 0.0, float(c.light_first_hits)] for c in cands])
+        recorded = samples.lanes / samples.every
+        relative = samples.relative_moments(rows, PilotMeans.of(mean, spp), splats,
+                                            splat_weight) / samples.lanes
+        for c, m in zip(cands, relative):
+            total, weight = self.moments.get(c, (0.0, 0.0))
+            self.moments[c] = (total + m * recorded, weight + recorded)
+        return decide(cands, np.array([self.moments[c][0] / self.moments[c][1]
+                                       for c in cands]), self.costs)

@@ -74,7 +74,8 @@ class PassContext:
     connection_scale: mi.Float = None  # 1 / kappa of the pass's stored vertices
     stored: mi.UInt32 = None           # V, the stored light vertices of the pass
     pixel: mi.UInt32 = None            # each camera lane's crop pixel (moments)
-    moments: MomentSamples | None = None   # a pilot pass's contributions (optimizer.py)
+    moments: MomentSamples | None = None   # a moment pass's contributions (optimizer.py)
+    mis_rates: tuple = (1.0, 1.0)      # N_L / N_C and kappa of the MIS weights
 
     def light_subpath(self, lane):
         """The light subpath camera lane ``lane`` connects to (i mod N_L)."""
@@ -261,6 +262,9 @@ class Renderer:
         self.plan = plan_passes(self.spp, self.pixels, max_lanes, self.settings.samples_per_pass,
                                 self._accepted_count)
         self.pilot, self._stride, self._path_tracer = None, {}, None
+        self._max_lanes = max_lanes
+        self._moment_passes = set()     # passes after the pilot that re-decide
+        self.redecide = True            # False: the pilot's decision holds (cluster.py)
         if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
             self._plan_pilot(max_lanes)
             if not self.media.present:
@@ -304,6 +308,26 @@ class Renderer:
             self.spp - spp, self.pixels, max_lanes, self.settings.samples_per_pass,
             self._accepted_count)
         self._stride = {0: 2, 1: 2}
+
+    def _plan_rounds(self) -> None:
+        """Re-decisions (optimizer.Pilot.redecide): the passes after the pilot end at 4,
+        16 and 64 times the pilot's spp, and the last pass before each such point
+        records moments (the first sample of every other pixel) with the balance
+        heuristic; the decision after it holds until the next.  Not where the pilot
+        chose path tracing (its samples give no other candidate's moment), nor in a
+        cluster (its workers share one plan, fixed before the pilot)."""
+        if not self.redecide or self.budget.light_ratio <= 0:
+            return
+        pilot_spp = self.plan[Pilot.PASSES - 1][2]
+        ends = [c * pilot_spp for c in (4, 16, 64) if c * pilot_spp < self.spp] + [self.spp]
+        plan, start = self.plan[:Pilot.PASSES], pilot_spp
+        for end in ends:
+            plan += plan_passes(end - start, self.pixels, self._max_lanes,
+                                self.settings.samples_per_pass, self._accepted_count)
+            if end < self.spp:
+                self._moment_passes.add(len(plan) - 1)
+            start = end
+        self.plan = plan
 
     def _accepted_count(self, n: int) -> int:
         sampler = self.sensor.sampler().clone()
@@ -366,6 +390,8 @@ class Renderer:
         if self.pilot is not None and index < Pilot.PASSES:
             budget, heuristic, moments = self.pilot.budget(index)
             return budget, heuristic or self.settings.mis, moments
+        if index in self._moment_passes and self.budget.light_ratio > 0:
+            return self.budget, "balance", True
         return self.budget, self.settings.mis, False
 
     def _context(self, index, rays, sampler, lanes: int, spp: int) -> PassContext:
@@ -374,7 +400,9 @@ class Renderer:
         n_light = budget.light_subpaths(lanes) if strategies.max_light_vertices() != -1 else 0
         # MIS rates of the pass: a vertex cache's kappa from the stored vertices per light
         # subpath of the last pass (the weights need a value before the light walk).
-        weights.set_rates(n_light / lanes, budget.kappa(n_light, n_light * self._vertices_per_path))
+        rates = (n_light / lanes, budget.kappa(n_light, n_light * self._vertices_per_path))
+        weights.set_rates(*rates)
+        every = 1 if index < Pilot.PASSES else 2 * spp    # a later moment pass: see above
         images = StrategyImages(self.strategies, lanes) if self.strategy_images else None
         return PassContext(
             scene=self.scene, camera=self.camera, settings=self.settings, budget=budget,
@@ -385,9 +413,12 @@ class Renderer:
             light_count=n_light, pick_offset=dr.opaque(mi.Float, _unit(self.seed, index)),
             noise_key=dr.opaque(mi.UInt32, _mix_seed(self.seed, index, 2) & 0xFFFFFFFF),
             images=images, pixel=rays.pixel,
-            moments=MomentSamples(lanes) if moments else None)
+            moments=MomentSamples(lanes, every) if moments else None, mis_rates=rates)
 
     def _render_pass(self, index, pixel_offset, n_pixels, spp, lanes):
+        if (self._path_tracer is not None and index >= Pilot.PASSES
+                and self.budget == PATH_TRACING):
+            return self._path_traced_pass(index, pixel_offset, n_pixels, spp, lanes)
         timer = _StageTimer(self.pilot is not None and index < Pilot.PASSES, self.kernel_history)
         # Stage 1: camera rays.
         sampler = self._sampler(index, 0, lanes, spp)
@@ -403,22 +434,14 @@ class Renderer:
         light_seconds = timer.lap()
 
         # Stage 3: camera subpaths, with every strategy t >= 2.
-        delegated = (self._path_tracer is not None and index >= Pilot.PASSES
-                     and ctx.budget == PATH_TRACING)
-        cam = (path_tracer_walk(self._path_tracer, self.scene, rays, sampler) if delegated
-               else trace_camera_subpaths(ctx, rays, store))
+        cam = trace_camera_subpaths(ctx, rays, store)
         # Every output the pass reads, in the walk's one kernel: an output evaluated
         # later would run the whole walk again (the pilot's slot counts did: 23 ms).
         dr.eval(cam.radiance, cam.hit, cam.rays, cam.slot, cam.specular_z1)
         camera_seconds = timer.lap()
 
-        # Stage 4: film.  Alpha as Mitsuba's path: 1 where the camera ray hit a surface,
-        # everywhere if an environment shows.
-        opaque = self.emitters.environment is not None and not self.settings.hide_emitters
-        self.film.put_camera(rays, cam.radiance, cam.hit | opaque,
-                             None if ctx.images is None else ctx.images.values, lanes)
-        if self.aovs is not None:
-            self.film.put_aovs(rays, self.aovs.values(rays.ray))
+        # Stage 4: film.
+        self._put_camera(rays, cam, None if ctx.images is None else ctx.images.values, lanes)
         if store is not None:
             # A pilot pass keeps the splats in its own pixels (film.py); the mask is
             # computed for every pass, so that all passes share one film kernel.
@@ -429,12 +452,35 @@ class Renderer:
                                  lanes / ctx.light_count * stride, keep,
                                  None if ctx.images is None else ctx.images.layer_of)
         self.film.camera_samples += lanes
-        if delegated:
-            self.path_tracer_spp += n_pixels * spp / self.pixels
-        else:
-            self.rays += int(dr.sum(cam.rays)[0]) + int(dr.sum(light_rays)[0])
+        self.rays += int(dr.sum(cam.rays)[0]) + int(dr.sum(light_rays)[0])
         if timer.on:
             self._pilot_pass(index, ctx, store, cam, light_seconds, camera_seconds, lanes)
+        elif ctx.moments is not None:
+            ctx.moments.count = cam.slot
+            self.budget = self.pilot.redecide(
+                ctx.moments, _splat_moments(ctx, store), self._luminance(),
+                self.spp_done + n_pixels * spp / self.pixels, ctx.budget, ctx.mis_rates).budget
+
+    def _put_camera(self, rays, cam, images=None, lanes: int = 0):
+        """The camera samples' values on the film.  Alpha as Mitsuba's path: 1 where
+        the camera ray hit a surface, everywhere if an environment shows."""
+        opaque = self.emitters.environment is not None and not self.settings.hide_emitters
+        self.film.put_camera(rays, cam.radiance, cam.hit | opaque, images, lanes)
+        if self.aovs is not None:
+            self.film.put_aovs(rays, self.aovs.values(rays.ray))
+
+    def _path_traced_pass(self, index, pixel_offset, n_pixels, spp, lanes):
+        """A pass after the pilot chose path tracing: Mitsuba's ``path`` on the pass's
+        camera rays, which, its walk and the film's put run in one kernel, as in
+        Mitsuba's own render.  (Evaluating the rays first, and the radiance before the
+        put, made the passes 7% slower than ``path``: glass pane, 128x128, 256 spp.)"""
+        sampler = self._sampler(index, 0, lanes, spp)
+        rays = self.camera.sample_rays(sampler, pixel_offset, n_pixels, spp)
+        self._put_camera(rays, path_tracer_walk(self._path_tracer, self.scene, rays, sampler))
+        sampler.schedule_state()
+        dr.eval(*[block.tensor() for block in self.film.blocks()])
+        self.film.camera_samples += lanes
+        self.path_tracer_spp += n_pixels * spp / self.pixels
 
     def _pilot_pass(self, index, ctx, store, cam, light_seconds, camera_seconds, lanes):
         """Record a pilot pass's costs; after the last one, choose the budget."""
@@ -449,9 +495,13 @@ class Renderer:
                           share)
         if ctx.moments is not None:
             ctx.moments.count = cam.slot
-            mean = self.tensor().numpy()[..., :3].mean(axis=-1)
-            self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean,
-                                             self.plan[index][2]).budget
+            self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store),
+                                             self._luminance(), self.plan[index][2]).budget
+            self._plan_rounds()
+
+    def _luminance(self) -> np.ndarray:
+        """The image so far, (H, W): the mean of its colour channels."""
+        return self.tensor().numpy()[..., :3].mean(axis=-1)
 
     def _light_subpaths(self, ctx, index: int, spp: int):
         """Stage 2; runs the light walk again with larger pools if one overflowed
@@ -521,8 +571,9 @@ class Renderer:
         if self.pilot.decision is None:
             return "pilot passes pending"
         by_path = self._path_tracer is not None and self.budget == PATH_TRACING
-        return self.pilot.decision.describe() + ("; the passes after the pilot run Mitsuba's "
-                                                 "path" if by_path else "")
+        rounds = "".join("; after %g spp %s" % (spp, b) for spp, b in self.pilot.rounds)
+        return ((self.pilot.first or self.pilot.decision).describe() + rounds
+                + ("; its path-tracing passes run Mitsuba's path" if by_path else ""))
 
 
 def render(scene, spp: int | None = None, seed: int = 0, sensor=0,

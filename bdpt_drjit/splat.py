@@ -43,8 +43,10 @@ def light_vertex_to_camera(ctx, store, v, vertex, sample, active) -> mi.UInt32:
     # distances through media.
     cam_pdf_a = cam.importance * cos_out * dens_rev
     contrib *= ctx.weights.light_to_camera(vertex.d_vcm, vertex.d_vc, vertex.s - 1, cam_pdf_a, rev_w)
-    u_pt, u_lt = (0.0, 0.0) if ctx.moments is None else mis.groups_light_image(
-        vertex.d_vcm, vertex.d_vc, vertex.d_end, vertex.s == 2, cam_pdf_a, rev_w)
+    u_pt, u_lt = (0.0, 0.0) if ctx.moments is None else _light_image_groups(
+        ctx, mis.groups_light_image(vertex.d_vcm, vertex.d_vc, vertex.d_end, vertex.s == 2,
+                                    cam_pdf_a, rev_w, ctx.weights.light_ratio,
+                                    ctx.weights.rate(vertex.s - 1)))
     store.splats.append(Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=vertex.s,
                               lane=ctx.lane, u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt)), active)
     return rays
@@ -80,12 +82,19 @@ def emitter_to_camera(ctx, store, es, medium, sample, active) -> mi.UInt32:
     active = traced & spectrum_nonzero(tr)
     cam_pdf_a = cam.importance * cos_e * dens_rev
     contrib *= ctx.weights.emitter_to_camera(cam_pdf_a, es.pos_pdf_a)
-    rival = cam_pdf_a / es.pos_pdf_a                 # the only rival, (0,2), is path tracing
+    # The only rival, (0,2), is path tracing; the light image's rate as in its weight.
+    rival = cam_pdf_a / (es.pos_pdf_a * ctx.weights.light_ratio)
+    u_pt, u_lt = _light_image_groups(ctx, (rival / (1.0 + rival), 1.0 / (1.0 + rival)))
     record = Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=mi.UInt32(1),
-                   lane=ctx.lane, u_pt=mi.Float(rival / (1.0 + rival)),
-                   u_lt=mi.Float(1.0 / (1.0 + rival)))
+                   lane=ctx.lane, u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt))
     # Outside a loop an append's mask is evaluated at once: evaluate everything in one
     # kernel first, or the emission sample is computed twice (two large kernels).
     dr.eval(record, active, rays, es)
     store.splats.append(record, active)
     return rays
+
+
+def _light_image_groups(ctx, groups):
+    """(u_pt, u_lt) of a light-image contribution: with light_first_hits the light
+    image alone samples its paths (its weight is 1)."""
+    return (0.0, 1.0) if ctx.weights.light_first_hits else groups

@@ -1,6 +1,8 @@
 """The pilot's share of a default ("auto" budget) render: each pass and the decision
 timed, on the Cornell box; "net" subtracts what the chosen budget would have spent on
-the pilot's samples (1 spp of the image), which the image keeps.
+the pilot's samples (1 spp of the image), which the image keeps.  Then the whole cost
+of choosing: the default's time against a render fixed to the budget it chose last,
+same seed, next to it (pilot, re-decisions and the shorter passes they need).
 
     python -m benchmarks.pilot_overhead            # 256x256, 64 spp, 3 renders
 """
@@ -44,13 +46,18 @@ def timed_render(scene, spp: int, seed: int) -> dict:
         total = time.perf_counter() - t
     finally:
         render_mod.Renderer._render_pass, optimizer.Pilot.decide = run_pass, choose
+    fixed = dict(item.split("=") for item in res.stats["budget"].split())
+    t = time.perf_counter()
+    bdpt_drjit.render(scene, spp=spp, seed=seed, max_depth=8, **fixed)
+    fixed_time = time.perf_counter() - t
     pilot = sum(passes[:2])
     # The pilot's samples are part of the image: its net overhead is what it took
     # beyond what the chosen budget spends on as many samples (the rest's rate).
     pilot_spp = optimizer.Pilot.spp(res.image.shape[0] * res.image.shape[1], spp)
     net = pilot - pilot_spp * sum(passes[2:]) / max(spp - pilot_spp, 1)
     return {"total": total, "pilot": pilot, "decide": sum(decide), "budget": res.stats["budget"],
-            "share": pilot / total, "net": net / total}
+            "share": pilot / total, "net": net / total, "fixed": fixed_time,
+            "passes": len(passes)}
 
 
 def main() -> None:
@@ -64,8 +71,10 @@ def main() -> None:
     for i in range(a.repeats):
         r = timed_render(scene, a.spp, 1000 + i)
         C.log("render %.3f s, pilot passes %.3f s (of which the decision %.3f s): %.1f%%, "
-              "net of the samples they give %.1f%%; budget %s"
-              % (r["total"], r["pilot"], r["decide"], 100 * r["share"], 100 * r["net"], r["budget"]))
+              "net of the samples they give %.1f%%; budget %s; %d passes; fixed to that "
+              "budget %.3f s (auto / fixed %.3f)"
+              % (r["total"], r["pilot"], r["decide"], 100 * r["share"], 100 * r["net"], r["budget"],
+                 r["passes"], r["fixed"], r["total"] / r["fixed"]))
 
 
 if __name__ == "__main__":

@@ -255,3 +255,70 @@ def test_auto_budgets_agree_with_path(box):
     ours = [bdpt_drjit.render(box, spp=32, seed=s, max_depth=5).image for s in range(8)]
     ref = [mitsuba_render(box, "path", 128, seed=300 + s, max_depth=5) for s in range(8)]
     assert_statistically_equal(ours, ref, what="auto budgets")
+
+
+def test_a_later_moment_pass_records_every_nth_lane():
+    """A moment pass after the pilot records the camera side of every ``every``-th
+    lane (its memory stays the pilot's) and counts each recorded sample ``every``
+    times; its splats count with the weight given."""
+    import drjit as dr
+    samples = MomentSamples(4, every=2)
+    lane = dr.arange(mi.UInt32, 4)
+    samples.count = samples.add(mi.UInt32(0), lane, lane, mi.Spectrum(mi.Float([1.0, 5.0, 1.0, 5.0])),
+                                mi.Float(1.0), mi.Float(0.0), mi.Bool(True))
+    recorded = samples._camera_side()
+    assert sorted(recorded.pixel.numpy().tolist()) == [0, 2]
+    means = PilotMeans(mi.Float([1.0] * 4), mi.Float([0.0] * 4), 0.0)
+    splats = (MomentSample(pixel=mi.UInt32([1]), f2=mi.Float([4.0]), u_pt=mi.Float([0.0]),
+                           u_lt=mi.Float([1.0])), mi.Bool([True]))
+    rates = np.array([[1.0, 0.0, 0.0]])
+    # 2 x (1 + 1) from the camera side (lanes 1 and 3, F = 5, unrecorded), 0.25 x 4
+    # from the splat
+    assert samples.relative_moments(rates, means, splats, 0.25)[0] == pytest.approx(5.0)
+
+
+@pytest.mark.parametrize("budget", [Budget(1.0, 0), Budget(0.5, "all"), Budget(1.0, 2),
+                                    Budget(0.25, 1), Budget(2.0, 0, True)])
+def test_every_budget_estimates_the_pilots_moments(budget):
+    """A re-decision's moment pass renders the chosen budget, whose balance weights
+    give the candidates' balance sums through its own rates (optimizer.Pilot.redecide):
+    its estimate of each candidate's moment per camera sample must be the pilot's
+    (which renders Veach's BDPT at unit rates), for every candidate it covers.  With
+    the rates left out of the shares, a pass without connections estimated 1.5x the
+    pilot's moments; with a vertex cache, whose connections recorded no moments,
+    0.72-0.9x."""
+    from bdpt_drjit.optimizer import covers
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=64, resy=64)
+    r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=64, seed=1, max_depth=5)
+    for _ in range(Pilot.PASSES):
+        r.run_pass()
+    pilot = dict(r.pilot.moments)
+    r.budget, r._moment_passes = budget, {Pilot.PASSES}
+    r.plan.insert(Pilot.PASSES, (0, r.pixels, 16))
+    r.run_pass()
+    checked = 0
+    for c, (total, n) in r.pilot.moments.items():
+        if not covers(budget, c):
+            assert r.pilot.moments[c] == pilot[c]
+            continue
+        later = (total - pilot[c][0]) / (n - pilot[c][1])
+        assert later == pytest.approx(pilot[c][0] / pilot[c][1], rel=0.1), c
+        checked += 1
+    assert checked >= 2
+
+
+def test_re_decisions_after_4_16_and_64_times_the_pilots_samples():
+    """The passes after the pilot end at 4, 16 and 64 times its spp; the last before
+    each records moments and re-decides, and the log says what it chose."""
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=128, resy=128)
+    r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=128, seed=1, max_depth=5,
+                                                  first_hits="light_image")
+    while not r.done:
+        r.run_pass()
+    pilot_spp = r.plan[0][2]
+    ends = np.cumsum([p[2] for p in r.plan[Pilot.PASSES - 1:]])
+    assert [ends[i - Pilot.PASSES + 1] for i in sorted(r._moment_passes)] == \
+        [4 * pilot_spp, 16 * pilot_spp, 64 * pilot_spp]
+    assert [spp for spp, _ in r.pilot.rounds] == [4 * pilot_spp, 16 * pilot_spp, 64 * pilot_spp]
+    text = r.result().stats["decision"]
+    assert all("after %d spp light_paths=" % (c * pilot_spp) in text for c in (4, 16, 64)), text
