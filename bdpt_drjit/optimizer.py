@@ -110,25 +110,32 @@ class MomentSamples:
         self.items = empty(MomentSample, -(-lanes // every) * self.SLOTS)
         self.count = dr.zeros(mi.UInt32, lanes)           # slots used, per lane
         self._every = dr.opaque(mi.UInt32, every)
-        dr.make_opaque(self.items, self.count)
+        # Each lane's first slot, or NOT_RECORDED: one gather per contribution (an
+        # integer division per contribution cost a moment pass 8% more time).
+        lane = dr.arange(mi.UInt32, lanes)
+        self.base = dr.select(lane % self._every == 0, lane // self._every * self.SLOTS,
+                              self.NOT_RECORDED)
+        dr.make_opaque(self.items, self.count, self.base)
+
+    NOT_RECORDED = 0xFFFFFFFF
 
     def add(self, slot, lane, pixel, value, u_pt, u_lt, active):
         """Record a camera-side contribution in the lane's next slot; returns the slot
         count."""
         lum = dr.mean(mi.unpolarized_spectrum(value))   # RGB / spectral / mono alike
-        ok = active & (lum != 0) & (slot < self.SLOTS) & (lane % self._every == 0)
+        base = dr.gather(mi.UInt32, self.base, lane, active)
+        ok = active & (lum != 0) & (slot < self.SLOTS) & (base != self.NOT_RECORDED)
         dr.scatter(self.items, MomentSample(pixel=mi.UInt32(pixel), f2=mi.Float(dr.square(lum)),
                                             u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt)),
-                   lane // self._every * self.SLOTS + slot, ok)
+                   base + slot, ok)
         return slot + dr.select(ok, 1, 0)
 
-    def relative_moments(self, rates: np.ndarray, means: "PilotMeans", splats=None,
-                         splat_weight: float = 1.0) -> np.ndarray:
+    def relative_moments(self, rates: np.ndarray, means: "PilotMeans", splats=None) -> np.ndarray:
         """Per candidate (rows of ``rates``: r, kappa, light_first_hits, each relative
         to the pass's own rates), the second moment of its balance estimator relative
         to each pixel's squared mean (``means``), summed over these samples (times
         ``every``) and the pass's splats (a ``MomentSample`` of them, with its
-        validity; times ``splat_weight``), outlier pixels left out (``outliers``): an
+        validity and the weight of each), outlier pixels left out (``outliers``): an
         estimate of the sum over the pass's camera samples.
 
         A light_first_hits candidate samples a path whose z_1 is smooth by the light
@@ -138,7 +145,7 @@ class MomentSamples:
         f64 = dr.float64_array_t(mi.Float)
         groups = []                 # per kind of sample: (relative F^2, u_pt, u_lt, pixel)
         kinds = [(self._camera_side(), None, self.every)]
-        for items, valid, weight in kinds + ([] if splats is None else [(*splats, splat_weight)]):
+        for items, valid, weight in kinds + ([] if splats is None else [splats]):
             if valid is not None:
                 items = gather(items, dr.compress(valid))  # the recorded samples only
             if dr.width(items.f2) == 0:
@@ -147,24 +154,10 @@ class MomentSamples:
             groups.append((f64(relative * weight), f64(items.u_pt), f64(items.u_lt), items.pixel))
         dropped = outliers(groups, dr.width(means.blurred))
         sums = np.zeros(len(rates))
+        table = [f64(rates[:, i]) for i in range(3)]      # per candidate: r, kappa, first hits
         for relative, u_pt, u_lt, pixel in groups:
             relative = dr.select(dr.gather(mi.Bool, dropped, pixel), 0.0, relative)
-            u_con = dr.maximum(1.0 - u_pt - u_lt, 0.0)
-            # A share of 0: the candidate cannot sample this path (infinite moment).
-            # (Reduced by Dr.Jit: numpy took 0.16 s for 17 candidates x 186k samples.)
-            parts = []
-            for r, k, first_hits in rates.tolist():
-                # Opaque rates: kappa changes with every render; as literals each
-                # decision compiled a new kernel (0.03-0.05 s).
-                r, k = dr.opaque(f64, r), dr.opaque(f64, k)
-                share = u_pt + r * u_lt + k * u_con
-                if first_hits:
-                    share = dr.select(u_lt > 0, r * u_lt, share)
-                parts.append(relative / dr.maximum(share, 1e-9))
-            dr.eval(parts)                           # one kernel for all candidates
-            parts = [dr.sum(p) for p in parts]       # then block reductions only
-            dr.eval(parts)
-            sums += np.array([float(p[0]) for p in parts])
+            sums += _per_candidate(relative, u_pt, u_lt, table, len(rates))
         return sums
 
     def _camera_side(self) -> MomentSample:
@@ -172,6 +165,26 @@ class MomentSamples:
         idx = dr.arange(mi.UInt32, dr.width(self.items.f2))
         live = idx % self.SLOTS < dr.gather(mi.UInt32, self.count, idx // self.SLOTS * self._every)
         return gather(self.items, dr.compress(live))
+
+
+def _per_candidate(relative, u_pt, u_lt, table, count: int) -> np.ndarray:
+    """Per candidate (``table``: r, kappa and first hits per candidate, relative to
+    the pass's rates), the sum of relative F^2 / share over samples: one lane per
+    (candidate, sample), one block reduction and one read (a kernel, a reduction and a
+    read per candidate took 9 ms of a decision at 256x256, and each set of candidates
+    was a kernel of its own).  A share of 0: the candidate cannot sample the path
+    (infinite moment)."""
+    f64 = type(relative)
+    n = dr.width(relative)
+    idx = dr.arange(mi.UInt32, n * count)
+    width = dr.opaque(mi.UInt32, n)                   # no kernel per sample count
+    cand, i = idx // width, idx % width
+    r, k, first_hits = (dr.gather(f64, column, cand) for column in table)
+    u_pt, u_lt = dr.gather(f64, u_pt, i), dr.gather(f64, u_lt, i)
+    share = u_pt + r * u_lt + k * dr.maximum(1.0 - u_pt - u_lt, 0.0)
+    share = dr.select((first_hits > 0) & (u_lt > 0), r * u_lt, share)
+    value = dr.gather(f64, relative, i) / dr.maximum(share, 1e-9)
+    return dr.block_sum(value, n).numpy()
 
 
 # Outlier pixels: a pixel whose pilot moment outweighs all the others together weighs
@@ -371,8 +384,7 @@ class Pilot:
         """The budget for the rest of the render, from the BDPT pilot's samples and the
         image of both pilot passes (its luminance, (H, W), after ``spp`` camera samples
         per pixel)."""
-        self.decision = self._decide(self.candidates, samples, splats, mean, spp,
-                                     (1.0, 1.0), 1.0)
+        self.decision = self._decide(self.candidates, samples, splats, mean, spp, (1.0, 1.0))
         self.first = self.decision
         return self.decision
 
@@ -382,24 +394,20 @@ class Pilot:
         rendered ``budget`` with the balance heuristic at MIS ``rates`` (N_L / N_C,
         kappa): among the candidates whose balance sums that pass's samples give
         (``covers``), with each candidate's moment averaged over every moment pass so
-        far.  The image's means are the whole render's so far (``spp`` per pixel).
-        Each of the pass's light subpaths contributes value / r (N_C / N_L times its
-        splat) per camera sample, hence ``splat_weight`` 1 / r^2."""
+        far.  The image's means are the whole render's so far (``spp`` per pixel)."""
         cands = [c for c in self.candidates if covers(budget, c)]
-        self.decision = self._decide(cands, samples, splats, mean, spp, rates,
-                                     1.0 / rates[0] ** 2)
+        self.decision = self._decide(cands, samples, splats, mean, spp, rates)
         self.rounds.append((spp, self.decision.budget))
         return self.decision
 
-    def _decide(self, cands, samples, splats, mean, spp, rates, splat_weight) -> Decision:
+    def _decide(self, cands, samples, splats, mean, spp, rates) -> Decision:
         """Per candidate, the relative moment summed over pixels per camera sample of
         this pass, averaged with earlier passes' by their recorded camera samples."""
         r, k = rates
         rows = np.array([[c.light_ratio / r, c.kappa(1, self.costs.stored_per_path) / k if k
                           else 0.0, float(c.light_first_hits)] for c in cands])
         recorded = samples.lanes / samples.every
-        relative = samples.relative_moments(rows, PilotMeans.of(mean, spp), splats,
-                                            splat_weight) / samples.lanes
+        relative = samples.relative_moments(rows, PilotMeans.of(mean, spp), splats) / samples.lanes
         for c, m in zip(cands, relative):
             total, weight = self.moments.get(c, (0.0, 0.0))
             self.moments[c] = (total + m * recorded, weight + recorded)

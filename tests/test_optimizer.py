@@ -260,7 +260,7 @@ def test_auto_budgets_agree_with_path(box):
 def test_a_later_moment_pass_records_every_nth_lane():
     """A moment pass after the pilot records the camera side of every ``every``-th
     lane (its memory stays the pilot's) and counts each recorded sample ``every``
-    times; its splats count with the weight given."""
+    times; its splats count with the weight they come with."""
     import drjit as dr
     samples = MomentSamples(4, every=2)
     lane = dr.arange(mi.UInt32, 4)
@@ -270,11 +270,11 @@ def test_a_later_moment_pass_records_every_nth_lane():
     assert sorted(recorded.pixel.numpy().tolist()) == [0, 2]
     means = PilotMeans(mi.Float([1.0] * 4), mi.Float([0.0] * 4), 0.0)
     splats = (MomentSample(pixel=mi.UInt32([1]), f2=mi.Float([4.0]), u_pt=mi.Float([0.0]),
-                           u_lt=mi.Float([1.0])), mi.Bool([True]))
+                           u_lt=mi.Float([1.0])), mi.Bool([True]), 0.25)
     rates = np.array([[1.0, 0.0, 0.0]])
     # 2 x (1 + 1) from the camera side (lanes 1 and 3, F = 5, unrecorded), 0.25 x 4
     # from the splat
-    assert samples.relative_moments(rates, means, splats, 0.25)[0] == pytest.approx(5.0)
+    assert samples.relative_moments(rates, means, splats)[0] == pytest.approx(5.0)
 
 
 @pytest.mark.parametrize("budget", [Budget(1.0, 0), Budget(0.5, "all"), Budget(1.0, 2),
@@ -286,9 +286,10 @@ def test_every_budget_estimates_the_pilots_moments(budget):
     (which renders Veach's BDPT at unit rates), for every candidate it covers.  With
     the rates left out of the shares, a pass without connections estimated 1.5x the
     pilot's moments; with a vertex cache, whose connections recorded no moments,
-    0.72-0.9x."""
+    0.72-0.9x.  (Each estimate rests on 8192 camera samples or light subpaths; over
+    3 seeds the two agreed within 6%, within 10% for light tracing at first hits.)"""
     from bdpt_drjit.optimizer import covers
-    scene = mi.load_file(scene_path("cornell-box.xml"), resx=64, resy=64)
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=128, resy=128)
     r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=64, seed=1, max_depth=5)
     for _ in range(Pilot.PASSES):
         r.run_pass()
@@ -308,17 +309,16 @@ def test_every_budget_estimates_the_pilots_moments(budget):
 
 
 def test_re_decisions_after_4_16_and_64_times_the_pilots_samples():
-    """The passes after the pilot end at 4, 16 and 64 times its spp; the last before
-    each records moments and re-decides, and the log says what it chose."""
-    scene = mi.load_file(scene_path("cornell-box.xml"), resx=128, resy=128)
-    r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=128, seed=1, max_depth=5,
-                                                  first_hits="light_image")
+    """The first pass that ends at or after 4, 16 and 64 times the pilot's spp
+    records moments and re-decides, and the log says what it chose."""
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=64, resy=64)
+    r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=300, seed=1, max_depth=5,
+                                                  first_hits="light_image", samples_per_pass=4)
     while not r.done:
         r.run_pass()
-    pilot_spp = r.plan[0][2]
-    ends = np.cumsum([p[2] for p in r.plan[Pilot.PASSES - 1:]])
-    assert [ends[i - Pilot.PASSES + 1] for i in sorted(r._moment_passes)] == \
-        [4 * pilot_spp, 16 * pilot_spp, 64 * pilot_spp]
-    assert [spp for spp, _ in r.pilot.rounds] == [4 * pilot_spp, 16 * pilot_spp, 64 * pilot_spp]
+    assert r.plan[0][2] == 4 and {p[2] for p in r.plan} == {4}
+    # the passes end at 8, 12, 16, ..., 300 spp
+    assert sorted(r._moment_passes) == [2 + (16 - 8) // 4, 2 + (64 - 8) // 4, 2 + (256 - 8) // 4]
+    assert [spp for spp, _ in r.pilot.rounds] == [16, 64, 256]
     text = r.result().stats["decision"]
-    assert all("after %d spp light_paths=" % (c * pilot_spp) in text for c in (4, 16, 64)), text
+    assert all("after %d spp light_paths=" % spp in text for spp in (16, 64, 256)), text
