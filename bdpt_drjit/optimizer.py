@@ -24,16 +24,17 @@ it would miss light.  Each pixel's moment is divided by its squared mean (the pi
 image, box-filtered, without the sample itself: PilotMeans) and the sum over pixels,
 a firefly pixel left out (outliers), is the candidate's relative error.
 
-Re-decisions.  The passes after the pilot end at 4, 16 and 64 times its spp
-(render.Renderer._plan_rounds); the last before each is a moment pass of the budget
-being rendered, with the balance heuristic at that budget's rates (r_B, kappa_B), its
-camera side recorded on one lane in 2 x spp (the pilot's memory).  Its shares are of
-P_B, so P_c / P_B = u_pt + (r_c / r_B) u_lt + (kappa_c / kappa_B) u_con: that gives
-every candidate whose strategy groups have a positive rate in the budget (``covers``),
-and a light image splat counts as value / r_B per camera sample.  Each candidate's
-moment per camera sample is averaged over the moment passes so far, and the means are
-the whole image's so far.  After path tracing there is nothing to re-decide from: its
-samples give no light subpath's density.
+Re-decisions.  The first pass that ends at or after 4, 16 and 64 times the pilot's
+spp (render.Renderer._plan_rounds) is a moment pass of the budget being rendered,
+with the balance heuristic at that budget's rates (r_B, kappa_B), its camera side
+recorded on one lane in 2 x spp (the pilot's memory) and its light side on one light
+subpath in 2 x spp x r_B (render._splat_moments).  Its shares are of P_B, so
+P_c / P_B = u_pt + (r_c / r_B) u_lt + (kappa_c / kappa_B) u_con: that gives every
+candidate whose strategy groups have a positive rate in the budget (``covers``), and a
+light image splat counts as value / r_B per camera sample (N_C / N_L times it).  Each
+candidate's moment per camera sample is averaged over the moment passes so far, and
+the means are the whole image's so far.  After path tracing there is nothing to
+re-decide from: its samples give no light subpath's density.
 
 Costs come from this engine's own kernel times in the pilot (no constants fitted to
 another renderer): seconds per camera sample of a walk without connections and per
@@ -151,13 +152,29 @@ class MomentSamples:
             if dr.width(items.f2) == 0:
                 continue
             relative = items.f2 / means.squared(items.pixel, dr.sqrt(items.f2))
+            weight = dr.opaque(mi.Float, weight)           # no kernel per value
             groups.append((f64(relative * weight), f64(items.u_pt), f64(items.u_lt), items.pixel))
         dropped = outliers(groups, dr.width(means.blurred))
         sums = np.zeros(len(rates))
-        table = [f64(rates[:, i]) for i in range(3)]      # per candidate: r, kappa, first hits
         for relative, u_pt, u_lt, pixel in groups:
             relative = dr.select(dr.gather(mi.Bool, dropped, pixel), 0.0, relative)
-            sums += _per_candidate(relative, u_pt, u_lt, table, len(rates))
+            u_con = dr.maximum(1.0 - u_pt - u_lt, 0.0)
+            # A share of 0: the candidate cannot sample this path (infinite moment).
+            # (Reduced by Dr.Jit: numpy took 0.16 s for 17 candidates x 186k samples;
+            # one block reduction over candidates x samples took 10x these 1-2 ms.)
+            parts = []
+            for r, k, first_hits in rates.tolist():
+                # Opaque rates: kappa changes with every render; as literals each
+                # decision compiled a new kernel (0.03-0.05 s).
+                r, k = dr.opaque(f64, r), dr.opaque(f64, k)
+                share = u_pt + r * u_lt + k * u_con
+                if first_hits:
+                    share = dr.select(u_lt > 0, r * u_lt, share)
+                parts.append(relative / dr.maximum(share, 1e-9))
+            dr.eval(parts)                           # one kernel for all candidates
+            parts = [dr.sum(p) for p in parts]       # then block reductions only
+            dr.eval(parts)
+            sums += np.array([float(p[0]) for p in parts])
         return sums
 
     def _camera_side(self) -> MomentSample:
@@ -165,26 +182,6 @@ class MomentSamples:
         idx = dr.arange(mi.UInt32, dr.width(self.items.f2))
         live = idx % self.SLOTS < dr.gather(mi.UInt32, self.count, idx // self.SLOTS * self._every)
         return gather(self.items, dr.compress(live))
-
-
-def _per_candidate(relative, u_pt, u_lt, table, count: int) -> np.ndarray:
-    """Per candidate (``table``: r, kappa and first hits per candidate, relative to
-    the pass's rates), the sum of relative F^2 / share over samples: one lane per
-    (candidate, sample), one block reduction and one read (a kernel, a reduction and a
-    read per candidate took 9 ms of a decision at 256x256, and each set of candidates
-    was a kernel of its own).  A share of 0: the candidate cannot sample the path
-    (infinite moment)."""
-    f64 = type(relative)
-    n = dr.width(relative)
-    idx = dr.arange(mi.UInt32, n * count)
-    width = dr.opaque(mi.UInt32, n)                   # no kernel per sample count
-    cand, i = idx // width, idx % width
-    r, k, first_hits = (dr.gather(f64, column, cand) for column in table)
-    u_pt, u_lt = dr.gather(f64, u_pt, i), dr.gather(f64, u_lt, i)
-    share = u_pt + r * u_lt + k * dr.maximum(1.0 - u_pt - u_lt, 0.0)
-    share = dr.select((first_hits > 0) & (u_lt > 0), r * u_lt, share)
-    value = dr.gather(f64, relative, i) / dr.maximum(share, 1e-9)
-    return dr.block_sum(value, n).numpy()
 
 
 # Outlier pixels: a pixel whose pilot moment outweighs all the others together weighs
