@@ -482,9 +482,10 @@ class Renderer:
 
     def _path_traced_pass(self, index, pixel_offset, n_pixels, spp, lanes):
         """A pass after the pilot chose path tracing: Mitsuba's ``path`` on the pass's
-        camera rays, which, its walk and the film's put run in one kernel, as in
-        Mitsuba's own render.  (Evaluating the rays first, and the radiance before the
-        put, made the passes 7% slower than ``path``: glass pane, 128x128, 256 spp.)"""
+        camera rays; rays, walk and the film's put run in one kernel, as in Mitsuba's
+        own render, with no buffer of rays or radiance between them (measured: the
+        same time as three kernels, 101-108 ns per sample against ``path``'s 100, glass
+        pane 128x128 256 spp)."""
         sampler = self._sampler(index, 0, lanes, spp)
         rays = self.camera.sample_rays(sampler, pixel_offset, n_pixels, spp)
         self._put_camera(rays, path_tracer_walk(self._path_tracer, self.scene, rays, sampler))
