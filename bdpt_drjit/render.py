@@ -184,23 +184,25 @@ def _splat_moments(ctx, store):
     """A moment pass's light-image contributions as moment samples (optimizer.py),
     with their validity and weight.  A splat is value / r per camera sample (N_C / N_L
     times its value, r = N_L / N_C), so its F^2 weighs 1 / r^2.  A pass after the pilot
-    takes one splat record in every * r (at least 1; about as many light subpaths as
-    camera lanes it records), each standing for the records it skips: a strided
-    gather, as its pool holds millions of records (reading a field of each took 15% of
-    a moment pass on the point caustic)."""
+    takes the splats of one light subpath in every * r (at least 1; about as many
+    light subpaths as camera lanes it records), chosen by subpath, not by place in the
+    pool, which the walk's threads fill in no fixed order; only the lanes of its
+    millions of records are read before the choice, and the choice is evaluated once
+    (unevaluated, the decision's kernels read the whole pool again: 20 ms)."""
     size = 0 if store is None else min(store.splats.size(), store.splats.capacity)
     if size == 0:
         return None
     s = store.splats
     r = ctx.mis_rates[0]
-    stride = min(max(1, int(ctx.moments.every * r)), size)
-    count = -(-size // stride)
-    items = gather(s.items, dr.arange(mi.UInt32, count) * dr.opaque(mi.UInt32, stride))
+    stride = max(1, int(ctx.moments.every * r))
+    index = dr.arange(mi.UInt32, size)
+    chosen = dr.gather(mi.UInt32, s.items.lane, index) % dr.opaque(mi.UInt32, stride) == 0
+    items = gather(s.items, dr.compress(chosen))
     value = dr.mean(mi.unpolarized_spectrum(items.value))
     samples = MomentSample(pixel=ctx.camera.pixel_index(items.pos), f2=dr.square(value),
                            u_pt=items.u_pt, u_lt=items.u_lt)
     dr.eval(samples)
-    return samples, None, size / count / r ** 2
+    return samples, None, stride / r ** 2
 
 
 def plan_passes(spp: int, pixels: int, max_lanes: int, explicit: int, accepted) -> list:

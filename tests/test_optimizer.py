@@ -286,10 +286,10 @@ def test_every_budget_estimates_the_pilots_moments(budget):
     (which renders Veach's BDPT at unit rates), for every candidate it covers.  With
     the rates left out of the shares, a pass without connections estimated 1.5x the
     pilot's moments; with a vertex cache, whose connections recorded no moments,
-    0.72-0.9x.  (Each estimate rests on 8192 camera samples or light subpaths; over
-    3 seeds the two agreed within 6%, within 10% for light tracing at first hits.)"""
+    0.72-0.9x.  (Each estimate rests on 32768 camera samples or light subpaths; over
+    3-4 seeds the two agreed within 5%; at 128x128 within 10%.)"""
     from bdpt_drjit.optimizer import covers
-    scene = mi.load_file(scene_path("cornell-box.xml"), resx=128, resy=128)
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=256, resy=256)
     r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=64, seed=1, max_depth=5)
     for _ in range(Pilot.PASSES):
         r.run_pass()
