@@ -89,8 +89,9 @@ def test_cluster_render_is_the_local_render(local_render, cluster_render):
 
 @needs_ray
 def test_auto_budget_on_a_cluster(folder, local_render):
-    """The pilot runs on one worker, every later pass uses the budget it chose, and the
-    image agrees with the fixed-budget render (both are unbiased)."""
+    """The pilot runs on one worker, every later pass uses the budget it chose (the
+    workers share one plan: no re-decisions), and the image agrees with the
+    fixed-budget render (both are unbiased)."""
     out = folder / "auto.exr"
     auto = SCENE[:-4]
     assert auto[-2:] == ["--samples-per-pass", "2"]
@@ -98,6 +99,7 @@ def test_auto_budget_on_a_cluster(folder, local_render):
     img, meta = read_exr(out)
     ref, _ = read_exr(local_render)
     assert meta["spp"] == 64 and meta["budget_decision"].startswith("chose " + meta["budget"])
+    assert "; after " not in meta["budget_decision"]
     # Whole-image means: 24x24 pixels of 64 and 256 spp, a few percent apart at most.
     assert abs(img[..., :3].mean() / ref[..., :3].mean() - 1) < 0.03
 
