@@ -97,6 +97,14 @@ class MomentSample:
     u_lt: mi.Float
 
 
+def luminance(value) -> mi.Float:
+    """The mean of a spectrum's channels (RGB, spectral and mono alike).  Not
+    ``dr.mean``: it scales by the array's width, a literal in the kernel, so each
+    number of samples compiled a kernel of its own."""
+    channels = mi.unpolarized_spectrum(value)
+    return sum(channels[i] for i in range(len(channels))) / len(channels)
+
+
 class MomentSamples:
     """A moment pass's contributions.  Camera-side ones go to SLOTS slots per
     recorded camera lane, counted in the walk's state (no atomics; more are dropped):
@@ -122,7 +130,7 @@ class MomentSamples:
     def add(self, slot, lane, pixel, value, u_pt, u_lt, active):
         """Record a camera-side contribution in the lane's next slot; returns the slot
         count."""
-        lum = dr.mean(mi.unpolarized_spectrum(value))   # RGB / spectral / mono alike
+        lum = luminance(value)
         base = dr.gather(mi.UInt32, self.base, lane, active)
         ok = active & (lum != 0) & (slot < self.SLOTS) & (base != self.NOT_RECORDED)
         dr.scatter(self.items, MomentSample(pixel=mi.UInt32(pixel), f2=mi.Float(dr.square(lum)),

@@ -33,7 +33,7 @@ from .media import Media
 from .mis import Weights
 from .settings import Settings
 from .budgets import BDPT, PATH_TRACING, Budget, fixed_budget
-from .optimizer import MIN_SPP, MomentSample, MomentSamples, Pilot
+from .optimizer import MIN_SPP, MomentSample, MomentSamples, Pilot, luminance
 from .strategies import StrategyImages, StrategySet
 from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore, gather
 from .walk import path_tracer_walk, trace_camera_subpaths, trace_light_subpaths
@@ -200,7 +200,7 @@ def _splat_moments(ctx, store):
         chosen = dr.gather(mi.UInt32, s.items.lane, index) % dr.opaque(mi.UInt32, stride) == 0
         index = dr.compress(chosen)
     items = gather(s.items, index)
-    value = dr.mean(mi.unpolarized_spectrum(items.value))
+    value = luminance(items.value)
     samples = MomentSample(pixel=ctx.camera.pixel_index(items.pos), f2=dr.square(value),
                            u_pt=items.u_pt, u_lt=items.u_lt)
     dr.eval(samples)

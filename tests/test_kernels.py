@@ -48,3 +48,29 @@ def test_new_spp_and_film_size_recompile_no_walk():
                    lambda: bdpt_drjit.render(other, spp=4, seed=3, max_depth=-1)):
         big = [e for e in compiled(launches(render)) if e.get("operation_count", 0) > SMALL]
         assert not big, ["%d ops" % e["operation_count"] for e in big]
+
+
+@pytest.mark.auto_budget
+def test_re_decisions_with_a_new_seed_compile_nothing():
+    """An auto render that re-decides (the light image alone at first hits, so the
+    moment pass's splats decide) with a new seed compiles nothing.  The splats it
+    records differ in number with every seed, and their luminance was ``dr.mean``,
+    which bakes the array's width into the kernel: 2 small kernels per render."""
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=64, resy=64)
+
+    def render(seed):
+        return bdpt_drjit.render(scene, spp=64, seed=seed, max_depth=5,
+                                 first_hits="light_image", samples_per_pass=4)
+    launches(lambda: render(1))
+    for seed in (2, 3):
+        again = launches(lambda: render(seed))
+        assert again and not compiled(again), "seed %d compiled %d kernels" % (seed, len(compiled(again)))
+    assert "after 16 spp" in render(4).stats["decision"]
+
+
+def test_luminance_compiles_one_kernel_for_every_width():
+    from bdpt_drjit.optimizer import luminance
+    for width in (5, 7):
+        out = launches(lambda: dr.eval(luminance(mi.Spectrum(dr.arange(mi.Float, width)))))
+        if width == 7:
+            assert out and not compiled(out)
