@@ -2,7 +2,7 @@
 scene system.
 
     import mitsuba as mi
-    mi.set_variant("llvm_ad_rgb")          # optional: llvm_ad_rgb is chosen if unset
+    mi.set_variant("llvm_ad_rgb")          # optional: $BDPT_VARIANT or llvm_ad_rgb if unset
     import bdpt_drjit                      # registers the integrator "bdpt"
     res = bdpt_drjit.render("scene.xml", spp=64, max_depth=8, seed=1)
     res.image                              # (H, W, C) NumPy array
@@ -12,9 +12,15 @@ strategies), film.py (camera block and light-image splats), render.py (passes),
 emitters.py / camera.py (the emitter and sensor models), integrators/bdpt.py
 (the Mitsuba plugin).
 """
+import os
+
 from ._signals import held_during_import
 
 __version__ = "0.1.0"
+
+# The variant chosen when none is set: BDPT_VARIANT=cuda_ad_rgb runs the tests, the
+# benchmarks and the CLI's default on a GPU.
+DEFAULT_VARIANT = os.environ.get("BDPT_VARIANT") or "llvm_ad_rgb"
 
 
 def register() -> None:
@@ -40,7 +46,7 @@ with held_during_import():
 
     if mi.variant() is None:
         try:
-            mi.set_variant("llvm_ad_rgb")
+            mi.set_variant(DEFAULT_VARIANT)
         except ImportError:      # no usable LLVM: render() reports it with install advice
             pass
 

@@ -165,9 +165,19 @@ def _light_start(ctx, store):
     d_vc = ctx.weights.light_start(es.emission_pdf, es.cos_emit, es.delta_pos | es.delta_dir)
     max_i = ctx.strategies.max_light_vertices()
     active = es.valid & (max_i is None or max_i >= 1)
-    state = PathState.start(y0.spawn_ray(es.d), es.beta, 0.0, d_vc, y0, active, medium)
+    state = PathState.start(_emission_ray(es, ctx), es.beta, 0.0, d_vc, y0, active, medium)
     state.rays += rays
     return es, state
+
+
+def _emission_ray(es, ctx) -> mi.Ray3f:
+    """The ray leaving y_0.  Mitsuba's spawn_ray offsets its origin along the normal,
+    which a point light lacks (n = 0): OptiX then reports the surface that the light
+    sits on at t = 0 (Embree does not; a black image came out bright under
+    cuda_ad_rgb, tests/test_stability.py point-on-surface), so such a ray is offset
+    along its own direction, as an environment's is (its n is d)."""
+    no_normal = dr.all(es.n == 0.0)
+    return _point(es.p, dr.select(no_normal, es.d, es.n), ctx.time, ctx.wavelengths).spawn_ray(es.d)
 
 
 # -- camera subpaths ----------------------------------------------------------------

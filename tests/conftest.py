@@ -29,6 +29,17 @@ def external(*parts) -> Path:
     return path
 
 
+def cli_env(env=None) -> dict:
+    """The environment of a subprocess (CLI, benchmarks): it imports bdpt_drjit from this
+    checkout (not an installed copy, which a subprocess run elsewhere would find), and
+    keeps any PYTHONPATH that the tests' own packages came from."""
+    full_env = dict(os.environ)
+    full_env["PYTHONPATH"] = os.pathsep.join(
+        [str(ROOT)] + [p for p in [os.environ.get("PYTHONPATH")] if p])
+    full_env.update(env or {})
+    return full_env
+
+
 def mitsuba_render(scene, integrator: str, spp: int, seed: int, **props) -> np.ndarray:
     integ = mi.load_dict({"type": integrator, **props})
     return np.array(mi.render(scene, integrator=integ, spp=spp, seed=seed))

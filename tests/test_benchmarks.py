@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from conftest import cli_env
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -18,7 +20,7 @@ def smoke(tmp_path_factory):
     pytest.importorskip("matplotlib")
     proc = subprocess.run([sys.executable, "-m", "benchmarks.run", "--smoke", "--out", str(out)],
                           cwd=str(ROOT), capture_output=True, text=True, timeout=300,
-                          env=dict(os.environ, PYTHONPATH=str(ROOT)))
+                          env=cli_env())
     return proc, out
 
 

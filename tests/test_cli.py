@@ -15,6 +15,7 @@ import pytest
 
 from bdpt_drjit.exr import read_exr, read_layers, write_exr, write_layers
 from bdpt_drjit.settings import PARAMS
+from conftest import cli_env
 
 ROOT = Path(__file__).resolve().parent.parent
 CORNELL = str(ROOT / "scenes" / "cornell-box.xml")
@@ -43,16 +44,6 @@ SCENES = {
                        '</shape></scene>' % (_SENSOR % "perspective", (_SENSOR % "perspective")
                                              .replace('"8"/>', '"12"/>', 1)),
 }
-
-
-def cli_env(env=None) -> dict:
-    """The environment of a CLI subprocess: it imports bdpt_drjit from this checkout
-    (not an installed copy, which a subprocess run elsewhere would find)."""
-    full_env = dict(os.environ)
-    full_env["PYTHONPATH"] = os.pathsep.join(
-        [str(ROOT)] + [p for p in [os.environ.get("PYTHONPATH")] if p])
-    full_env.update(env or {})
-    return full_env
 
 
 def run_cli(*args, cwd=None, env=None, timeout=180):
@@ -478,7 +469,7 @@ def test_old_llvm_is_refused(tmp_path):
 
 
 def test_missing_llvm_is_refused(tmp_path):
-    p = run_cli("render", CORNELL, *TINY, "-o", tmp_path / "out.exr",
+    p = run_cli("render", CORNELL, *TINY, "-o", tmp_path / "out.exr", "--variant", "llvm_ad_rgb",
                 env={"DRJIT_LIBLLVM_PATH": str(tmp_path / "libLLVM-missing.so")})
     clean_error(p, "LLVM", "install")
     assert written(tmp_path) == []

@@ -86,7 +86,8 @@ def test_seed_as_mitsuba_passes_it(box):
     of size 1 and a plain int give the same image."""
     integ = mi.load_dict({"type": "bdpt", "max_depth": 3})
     ref = np.array(mi.render(box, integrator=integ, spp=2, seed=3))
-    for seed in (mi.UInt32(3), dr.llvm.UInt32(3), np.uint32(3)):
+    plain = dr.llvm.UInt32 if mi.variant().startswith("llvm") else dr.cuda.UInt32
+    for seed in (mi.UInt32(3), plain(3), np.uint32(3)):
         img = np.array(mi.render(box, integrator=integ, spp=2, seed=seed))
         np.testing.assert_allclose(img, ref, rtol=1e-5, atol=1e-7, err_msg=repr(type(seed)))
     with pytest.raises(ValueError, match="single value"):
@@ -294,7 +295,10 @@ def test_alpha_matches_path(environment):
     ref = [mitsuba_render(scene, "path", 16, seed=100 + s, max_depth=3)[..., 3:] for s in range(8)]
     assert ours[0].shape == ref[0].shape == (16, 24, 1)
     if environment:
-        assert np.all(np.concatenate(ours) == 1) and np.all(np.concatenate(ref) == 1)
+        # Exactly 1 on the CPU; on a GPU the filter's weights reach the alpha and the
+        # weight sums by atomic adds in different orders (1 - 2^-24 seen, cuda_ad_rgb).
+        off = [float(np.abs(np.concatenate(x) - 1).max()) for x in (ours, ref)]
+        assert max(off) <= 2 ** -22, "alpha differs from 1 by %g (bdpt), %g (path)" % tuple(off)
     else:
         assert 0.5 < np.mean(ours) < 0.8          # the box's opening shows the void
         assert_statistically_equal([np.repeat(o, 3, -1) for o in ours],

@@ -15,7 +15,7 @@ import pytest
 
 import bdpt_drjit
 from bdpt_drjit.emitters import Emitters, ProjectorModel
-from conftest import ROOT, mitsuba_render
+from conftest import ROOT, cli_env, mitsuba_render
 from stats import assert_statistically_equal
 
 PLUGINS = ROOT / "scenes" / "plugins"
@@ -66,7 +66,7 @@ def test_cli_renders_curves_beside_an_area_light(tmp_path):
                         str(PLUGINS / "curve-beside-box.xml"), "-D", "resx=8", "-D", "resy=8",
                         "--spp", "1", "-o", str(tmp_path / "c.exr")],
                        capture_output=True, text=True, timeout=300,
-                       env={**os.environ, "PYTHONPATH": str(ROOT)})
+                       env=cli_env())
     assert p.returncode == 0, p.stderr
     assert (tmp_path / "c.exr").is_file()
 

@@ -15,7 +15,7 @@ import pytest
 import bdpt_drjit
 from bdpt_drjit import support
 from bdpt_drjit.cli import main
-from conftest import EXTERNAL, ROOT, SCENES
+from conftest import EXTERNAL, SCENES, cli_env
 
 PLUGINS = SCENES / "plugins"
 
@@ -95,7 +95,7 @@ def test_cli_renders_a_fog_cube(tmp_path):
     """``bdpt render`` of a fog cube exited 0 with the fog ignored, and ``bdpt info``
     called it supported; now both mean it."""
     scene = SCENES / "media" / "fog-cube.xml"
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = cli_env()
     p = subprocess.run([sys.executable, "-m", "bdpt_drjit", "render", str(scene), "--res", "8x8",
                         "--spp", "1", "-o", str(tmp_path / "fog.exr")],
                        capture_output=True, text=True, timeout=300, env=env)
@@ -145,7 +145,7 @@ def test_specfilm_is_refused_naming_the_film(tmp_path):
         '<spectrum name="band1" value="400:1, 700:1"/></film></sensor>'
         '<shape type="rectangle"/><emitter type="point"><point name="position" x="0" '
         'y="0" z="2"/></emitter></scene>')
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = cli_env()
     p = subprocess.run([sys.executable, "-m", "bdpt_drjit", "render", str(scene), "--variant",
                         "llvm_ad_spectral", "--spp", "1", "-o", str(tmp_path / "s.exr")],
                        capture_output=True, text=True, timeout=300, env=env)

@@ -7,11 +7,11 @@ import math
 import re
 import sys
 
+from .. import DEFAULT_VARIANT
 from ..settings import PARAMS, Param
 from .errors import CLIError, eprint
 
 PROG = "bdpt"
-DEFAULT_VARIANT = "llvm_ad_rgb"
 COMMANDS = ("render", "merge", "info")
 # Old spellings that still work, with a warning: the names were overloaded.
 RENAMED_OPTIONS = {"--strategy-set": "--strategy-subset", "--strategies": "--strategy-images"}
