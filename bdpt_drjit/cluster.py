@@ -566,7 +566,7 @@ class ClusterRun:
 
     @property
     def at_round_end(self) -> bool:
-        return abs(self.spp_done - round(self.spp_done)) < 1e-6
+        return self.renderer.is_round_end(self.sums.passes, self.spp_done)
 
     @property
     def workers_alive(self) -> int:
@@ -605,7 +605,7 @@ class ClusterRun:
         ranges); True while there are passes left to wait for."""
         sent = [i for _, i, _ in self.in_flight.values()] + list(self.finished)
         end = max(sent) + 1 if sent else self.sums.passes
-        while abs(self._spp_at[end] - round(self._spp_at[end])) > 1e-6:
+        while not self.renderer.is_round_end(end, self._spp_at[end]):
             end += 1
         self.limit = min(self.limit, end)
         return not self.done

@@ -61,7 +61,9 @@ RATIOS = (0.0, 0.25, 0.5, 1.0, 2.0)
 FIRST_HIT_RATIOS = (2.0, 4.0)   # light subpaths per camera sample of light_first_hits ones
 CACHE_PICKS = (1, 2)
 MIN_SPP = 16                   # fewer samples: the pilot would cost too much
-PILOT_LANES = 1 << 14          # a pilot pass's samples at least (timing needs work)
+# A pilot pass's samples at least: its kernel times must grow with the work, which on
+# a GPU takes about a wave of threads (an H100 holds 132 x 2048).
+PILOT_LANES = {"llvm": 1 << 14, "cuda": 1 << 18}
 BLUR = 4                       # radius of the box filter on the pilot's mean image
 
 
@@ -349,7 +351,8 @@ class Pilot:
     def spp(pixels: int, total_spp: int) -> int:
         """Samples per pixel of the pilot round: enough lanes in each half of the
         pixels to time the kernels, at most 1/16 of the render."""
-        return max(1, min(-(-PILOT_LANES // pixels), total_spp // 16))
+        lanes = PILOT_LANES["cuda" if mi.variant().startswith("cuda") else "llvm"]
+        return max(1, min(-(-lanes // pixels), total_spp // 16))
 
     def __init__(self, spectral: bool, light_image: bool = True):
         self.candidates = candidates(spectral, light_image)

@@ -355,10 +355,18 @@ class Renderer:
 
     @property
     def at_round_end(self) -> bool:
-        """Every pixel has had the same number of camera samples, so the image is
-        unbiased here.  Only a very large film, split into pixel ranges, is ever
-        between rounds: a stop there would leave pixels with the light image alone."""
-        return abs(self.spp_done - round(self.spp_done)) < 1e-6
+        return self.is_round_end(self.passes_done, self.spp_done)
+
+    def is_round_end(self, passes: int, spp_done: float) -> bool:
+        """Every pixel has had the same number of camera samples after the first
+        ``passes`` passes of the plan (``spp_done`` per pixel), so the image is
+        unbiased there.  Only the pilot's first pass (the even pixels) and a very large
+        film split into pixel ranges are ever between rounds: a stop there would leave
+        pixels with the light image alone (a time budget that ran out in the pilot's
+        first pass wrote the odd pixels black)."""
+        if self.pilot is not None and 0 < passes < Pilot.PASSES:
+            return False
+        return abs(spp_done - round(spp_done)) < 1e-6
 
     def run_pass(self) -> None:
         """Render the next pass of the plan."""

@@ -231,6 +231,17 @@ def test_time_budget(tmp_path):
     assert elapsed < 60
 
 
+def test_a_time_budget_spent_in_the_pilot_stops_after_its_round(tmp_path):
+    """The default budget's pilot is one round of two passes (the even pixels, then the
+    odd ones); a time budget spent in the first stopped there and wrote the odd pixels
+    black (seen on a GPU, whose first pass compiled for longer than the budget)."""
+    out = tmp_path / "pilot.exr"
+    p = ok(run_cli("render", CORNELL, *TINY, "--spp", 64, "--samples-per-pass", 4,
+                   "--max-depth", 3, "--time", 0.001, "-o", out))
+    _, meta = read_exr(out)
+    assert meta["spp"] == 4 and meta["passes"] == 2 and "time budget" in p.stderr
+
+
 def test_time_budget_on_a_film_split_in_pixel_ranges(tmp_path):
     """A film too large for one pass at 1 spp is rendered in pixel ranges; a time
     budget (or a checkpoint) must never leave pixels without camera samples: the

@@ -304,6 +304,10 @@ class _FakeRenderer:
     pixels, spp = 100, 3
     pilot, budget = None, None
 
+    def is_round_end(self, passes, spp_done):
+        from bdpt_drjit.render import Renderer
+        return Renderer.is_round_end(self, passes, spp_done)
+
 
 def _run(**slots):
     from types import SimpleNamespace
