@@ -79,12 +79,11 @@ class FilmAccumulator:
         base = [mi.Float(0.0)] * (self.base_channels - 1) + [mi.Float(1.0)]   # weight last
         self.aov.put(rays.pos, base + values)
 
-    def put_splats(self, splats, count: int, wavelengths, scale: float, keep: mi.Bool,
-                   layer_of=None):
-        """The light image's splats of a pass (``splats``: the pool's items) where
-        ``keep``, times ``scale`` = N_C / N_L of the pass (over the share of the film
-        kept).  Light subpath l has the wavelengths of camera lane l mod N_C."""
-        active = keep & (dr.arange(mi.UInt32, dr.width(splats.s)) < dr.opaque(mi.UInt32, count))
+    def put_splats(self, splats, wavelengths, scale: float, keep: mi.Bool, layer_of=None):
+        """The light image's splats of a pass where ``keep``, times ``scale`` = N_C /
+        N_L of the pass (over the share of the film kept).  Light subpath l has the
+        wavelengths of camera lane l mod N_C."""
+        active = mi.Bool(keep)
         pos = splats.pos + mi.Vector2f(self.light.offset())
         home = splats.lane % dr.opaque(mi.UInt32, dr.width(wavelengths))
         wl = dr.gather(type(wavelengths), wavelengths, home, active)

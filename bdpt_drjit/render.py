@@ -466,14 +466,7 @@ class Renderer:
         # Stage 4: film.
         self._put_camera(rays, cam, None if ctx.images is None else ctx.images.values, lanes)
         if store is not None:
-            # A pilot pass keeps the splats in its own pixels (film.py); the mask is
-            # computed for every pass, so that all passes share one film kernel.
-            stride = self._stride.get(index, 1)
-            keep = (self.camera.grid_index(store.splats.items.pos) % dr.opaque(mi.UInt32, stride)
-                    == dr.opaque(mi.UInt32, pixel_offset % stride))
-            self.film.put_splats(store.splats.items, store.splats.size(), ctx.wavelengths,
-                                 lanes / ctx.light_count * stride, keep,
-                                 None if ctx.images is None else ctx.images.layer_of)
+            self._put_splats(index, store, ctx, lanes, pixel_offset)
         self.film.camera_samples += lanes
         self.rays += int(dr.sum(cam.rays)[0]) + int(dr.sum(light_rays)[0])
         if timer.on:
@@ -483,6 +476,22 @@ class Renderer:
             self.budget = self.pilot.redecide(
                 ctx.moments, _splat_moments(ctx, store), self._luminance(),
                 self.spp_done + n_pixels * spp / self.pixels, ctx.budget, ctx.mis_rates).budget
+
+    def _put_splats(self, index, store, ctx, lanes: int, pixel_offset: int):
+        """The pass's light image on the film: the splats written, read by a kernel as
+        wide as their count (one as wide as the pool, 5 slots per light subpath, took
+        80 ms of 1.76 s on the point caustic, 128x128 256 spp, for 0.06 splats per
+        light subpath).  A pilot pass keeps the splats in its own pixels (film.py);
+        the mask is computed for every pass, so that all passes share one film kernel."""
+        count = min(store.splats.size(), store.splats.capacity)
+        if count == 0:
+            return
+        splats = gather(store.splats.items, dr.arange(mi.UInt32, count))
+        stride = self._stride.get(index, 1)
+        keep = (self.camera.grid_index(splats.pos) % dr.opaque(mi.UInt32, stride)
+                == dr.opaque(mi.UInt32, pixel_offset % stride))
+        self.film.put_splats(splats, ctx.wavelengths, lanes / ctx.light_count * stride, keep,
+                             None if ctx.images is None else ctx.images.layer_of)
 
     def _put_camera(self, rays, cam, images=None, lanes: int = 0):
         """The camera samples' values on the film.  Alpha as Mitsuba's path: 1 where
