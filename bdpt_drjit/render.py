@@ -298,7 +298,11 @@ class Renderer:
         self.rays = 0                 # traced by this engine's walks
         self.path_tracer_spp = 0.0    # samples per pixel rendered by Mitsuba's path
         self._last_lanes = 0
-        self._capacity = {}          # pool capacities per light subpath, raised on overflow
+        # Pool capacities per light subpath, raised on overflow, for every pass after:
+        # a light subpath's stored vertices do not depend on the pass's light subpaths
+        # (kept per count, every new count overflowed again: Veach's room ran one light
+        # walk twice per render: 7% of its time at 128x128, 256 spp).
+        self._capacity = [_VERTICES_PER_LANE, _SPLATS_PER_LANE]
         self._vertices_per_path = 3.0   # stored light vertices per light subpath, last pass
         self.kernel_history = []        # kernels the pilot's timing took from Dr.Jit's history
 
@@ -549,7 +553,7 @@ class Renderer:
         if n == 0:                                      # no strategy uses light subpaths
             return None, mi.UInt32(0)
         light = ctx.for_light_subpaths()
-        per_path = self._capacity.setdefault(n, [_VERTICES_PER_LANE, _SPLATS_PER_LANE])
+        per_path = self._capacity
         while True:
             store = LightVertexStore(n, n * per_path[0], n * per_path[1])
             light_rays = trace_light_subpaths(light, store)
