@@ -310,16 +310,24 @@ def _medium_layout_verdicts(scene, sensor) -> list:
 
 def reversed_normals(mesh) -> float:
     """The fraction of a mesh's area whose interpolated vertex normals point against
-    the normal of the triangle's winding (0 without vertex normals)."""
+    the normal of the triangle's winding (0 without vertex normals).  Computed where the
+    mesh lives, in one kernel: NumPy over the buffers read back took 55 ms per render for
+    half a million triangles."""
     if not mesh.has_vertex_normals() or mesh.face_count() == 0:
         return 0.0
-    p = np.asarray(dr.unravel(mi.Point3f, mesh.vertex_positions_buffer()).numpy()).T
-    n = np.asarray(dr.unravel(mi.Normal3f, mesh.vertex_normals_buffer()).numpy()).T
-    f = np.asarray(dr.unravel(mi.Vector3u, mesh.faces_buffer()).numpy()).T
-    winding = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
-    shading = n[f[:, 0]] + n[f[:, 1]] + n[f[:, 2]]
-    area = np.linalg.norm(winding, axis=1)
-    total = area.sum()
-    if total <= 0:
-        return 0.0
-    return float(area[np.einsum("ij,ij->i", winding, shading) < 0].sum() / total)
+    faces = mesh.faces_buffer()
+    face = dr.arange(mi.UInt32, mesh.face_count())
+    corner = [dr.gather(mi.UInt32, faces, 3 * face + k) for k in range(3)]
+
+    def at(buffer, index):
+        return mi.Vector3f(*(dr.gather(mi.Float, buffer, 3 * index + k) for k in range(3)))
+
+    p = [at(mesh.vertex_positions_buffer(), i) for i in corner]
+    winding = dr.cross(p[1] - p[0], p[2] - p[0])
+    shading = sum(at(mesh.vertex_normals_buffer(), i) for i in corner)
+    area = dr.norm(winding)
+    against = dr.select(dr.dot(winding, shading) < 0, area, 0.0)
+    total, reversed_area = dr.sum(area), dr.sum(against)
+    dr.eval(total, reversed_area)
+    total = float(total[0])
+    return float(reversed_area[0]) / total if total > 0 else 0.0

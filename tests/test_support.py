@@ -119,6 +119,20 @@ def test_reversed_vertex_normals_warn():
     assert all(support.reversed_normals(s) == 0.0 for s in lowpoly.shapes() if s.is_mesh())
 
 
+def test_reversed_normals_weigh_triangles_by_area():
+    """Two triangles of areas 1/2 and 2, vertex normals reversed on the larger: 80% of
+    the area (the fraction is computed in one kernel where the mesh lives)."""
+    import numpy as np
+    mesh = mi.Mesh("two", 6, 2, has_vertex_normals=True)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = mi.Float(np.array(
+        [0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 2, 0, 1, 0, 2, 1], dtype=np.float32))
+    params["faces"] = mi.UInt32(np.array([0, 1, 2, 3, 4, 5], dtype=np.uint32))
+    params["vertex_normals"] = mi.Float(np.array([0, 0, 1] * 3 + [0, 0, -1] * 3, dtype=np.float32))
+    params.update()
+    assert support.reversed_normals(mesh) == pytest.approx(0.8)
+
+
 def test_null_lobes_warn_and_are_listed_by_info():
     code, out, _ = _cli("info", PLUGINS / "null-pane.xml")
     assert code == 0 and "status:     supported" in out and "1 warning above" in out
