@@ -83,7 +83,7 @@ class FilmAccumulator:
         """The light image's splats of a pass where ``keep``, times ``scale`` = N_C /
         N_L of the pass (over the share of the film kept).  Light subpath l has the
         wavelengths of camera lane l mod N_C."""
-        active = mi.Bool(keep)
+        active = keep
         pos = splats.pos + mi.Vector2f(self.light.offset())
         home = splats.lane % dr.opaque(mi.UInt32, dr.width(wavelengths))
         wl = dr.gather(type(wavelengths), wavelengths, home, active)
