@@ -145,13 +145,16 @@ class FilmAccumulator:
         dr.eval(img)
         return img
 
-    def _light_scale(self) -> mi.Float:
-        return dr.opaque(mi.Float, self.crop_pixels / max(self.camera_samples, 1))
+    def _light_scale(self, camera_samples: int | None = None) -> mi.Float:
+        return dr.opaque(mi.Float, self.crop_pixels / max(camera_samples or self.camera_samples, 1))
 
-    def develop(self) -> mi.TensorXf:
+    def develop(self, camera_samples: int | None = None) -> mi.TensorXf:
         """The image: the camera block developed, plus the light block scaled; the
-        light block has alpha 0, so alpha is the camera block's.  AOV channels last."""
-        img = self._develop(self.camera) + self._develop(self.light) * self._light_scale()
+        light block has alpha 0, so alpha is the camera block's.  AOV channels last.
+        ``camera_samples``: normalize the light image by that many instead of those
+        put so far (a round of passes not yet complete)."""
+        img = (self._develop(self.camera)
+               + self._develop(self.light) * self._light_scale(camera_samples))
         if self.aov is None:
             return img
         self.film.prepare(self.aov_names)

@@ -2,9 +2,10 @@
 budget (budgets.py) whose cost times summed relative second moment is smallest.
 
 The pilot.  Two passes open a render whose budget is "auto", each over every other
-pixel (render.Renderer._plan_pilot): light tracing with path tracing (light_paths 1,
-connections 0) on the even pixels, then full BDPT (light_paths 1, connections "all")
-with the balance heuristic on the odd ones, in which every contribution also reports
+pixel (render.Renderer._plan_pilot; on a large film one pixel in four: Pilot.stride):
+light tracing with path tracing (light_paths 1, connections 0) on the even pixels,
+then full BDPT (light_paths 1, connections "all") with the balance heuristic on the
+odd ones, in which every contribution also reports
 its balance weight split into three groups of strategies: path tracing (s <= 1), the
 light image (t = 1) and connections (u_pt + u_lt + u_con = 1; the two ends of the
 ratio chains isolate u_pt and u_lt, walk.PathState.d_end).  Each pass keeps the splats
@@ -65,6 +66,10 @@ MIN_SPP = 16                   # fewer samples: the pilot would cost too much
 # a GPU takes about a wave of threads (an H100 holds 132 x 2048).
 PILOT_LANES = {"llvm": 1 << 14, "cuda": 1 << 18}
 BLUR = 4                       # radius of the box filter on the pilot's mean image
+
+
+def _pilot_lanes() -> int:
+    return PILOT_LANES["cuda" if mi.variant().startswith("cuda") else "llvm"]
 
 
 def candidates(spectral: bool, light_image: bool = True) -> list[Budget]:
@@ -249,19 +254,23 @@ class PilotMeans:
     floor: float            # DARK x the image mean^2
 
     @classmethod
-    def of(cls, image: np.ndarray, spp: int) -> "PilotMeans":
+    def of(cls, image: np.ndarray, spp: int, filled: np.ndarray | None = None) -> "PilotMeans":
         """From the pilot image's luminance (H, W) after ``spp`` camera samples per
         pixel: each sample is 1 / spp of its pixel (splats too: film.py's light image
         normalization; a wider pixel filter spreads that share over neighbours, almost
         all inside the same blur window), and a pixel is counts_x x counts_y /
         (2 BLUR + 1)^2 of its own blurred value (1 + BLUR times on the film's edge,
-        which the blur extends)."""
+        which the blur extends).  ``filled``: the pixels that have samples, where the
+        pilot took only some (Pilot.stride); the blur averages over those alone."""
         h, w = image.shape
         k = 2 * BLUR + 1
-        own = np.outer(_self_counts(h), _self_counts(w)) / (k * k * max(spp, 1))
-        return cls(blurred=mi.Float(_blur(image).ravel().astype(np.float32)),
+        f = np.ones((h, w)) if filled is None else filled.astype(float)
+        cover = np.maximum(_blur(f), 1.0 / (k * k))     # share of a window with samples
+        image = image * f
+        own = np.outer(_self_counts(h), _self_counts(w)) / (k * k * max(spp, 1) * cover)
+        return cls(blurred=mi.Float((_blur(image) / cover).ravel().astype(np.float32)),
                    own=mi.Float(own.ravel().astype(np.float32)),
-                   floor=DARK * max(float(np.mean(image)) ** 2, 1e-12))
+                   floor=DARK * max(float(image.sum() / f.sum()) ** 2, 1e-12))
 
     def squared(self, pixel: mi.UInt32, value: mi.Float) -> mi.Float:
         """The squared mean a sample of luminance ``value`` at ``pixel`` divides by."""
@@ -351,8 +360,24 @@ class Pilot:
     def spp(pixels: int, total_spp: int) -> int:
         """Samples per pixel of the pilot round: enough lanes in each half of the
         pixels to time the kernels, at most 1/16 of the render."""
-        lanes = PILOT_LANES["cuda" if mi.variant().startswith("cuda") else "llvm"]
-        return max(1, min(-(-lanes // pixels), total_spp // 16))
+        return max(1, min(-(-_pilot_lanes() // pixels), total_spp // 16))
+
+    @staticmethod
+    def stride(pixels: int, spp: int) -> int:
+        """Each pilot pass takes one pixel in ``stride``: 2, the two passes cover the
+        film, or 4 where a quarter of it at 1 spp gives a pass twice its lanes; the
+        odd pixels then get their samples of the round from the chosen budget
+        (render.Renderer._plan_pilot).  Past that size the pilot's samples need not
+        grow with the film: beyond what the chosen budget spends on as many samples,
+        the round took 4.1-4.2% of a 64-spp render of the Cornell box at 512x512 with
+        half-film passes, 2.8-3.0% with quarters.  Not with only PILOT_LANES each: at
+        256x256 the BDPT pass's camera walk then timed 1.8x dearer per sample than
+        over 32768 lanes on 2 cores (on one core alike; the CPU backend splits up to
+        2 x 16384 lanes per core into one block per core), and the ceiling-lit box
+        chose light tracing instead of connections.  The means its moments divide by
+        (PilotMeans) rest on half the samples, which makes every candidate's moment a
+        few percent larger (1 / mean^2 of a noisier mean), about alike for all."""
+        return 4 if spp == 1 and pixels // 4 >= 2 * _pilot_lanes() else 2
 
     def __init__(self, spectral: bool, light_image: bool = True):
         self.candidates = candidates(spectral, light_image)
@@ -386,11 +411,13 @@ class Pilot:
         self.costs.connect_per_sample = max(camera_seconds / lanes - self._path_camera, 0.0)
         self.costs.stored_per_path = stored / max(light_subpaths, 1)
 
-    def decide(self, samples: MomentSamples, splats, mean: np.ndarray, spp: int) -> Decision:
+    def decide(self, samples: MomentSamples, splats, mean: np.ndarray, spp: int,
+               filled: np.ndarray | None = None) -> Decision:
         """The budget for the rest of the render, from the BDPT pilot's samples and the
         image of both pilot passes (its luminance, (H, W), after ``spp`` camera samples
-        per pixel)."""
-        self.decision = self._decide(self.candidates, samples, splats, mean, spp, (1.0, 1.0))
+        per pixel of those in ``filled``, all by default)."""
+        self.decision = self._decide(self.candidates, samples, splats, mean, spp, (1.0, 1.0),
+                                     filled)
         self.first = self.decision
         return self.decision
 
@@ -406,14 +433,14 @@ class Pilot:
         self.rounds.append((spp, self.decision.budget))
         return self.decision
 
-    def _decide(self, cands, samples, splats, mean, spp, rates) -> Decision:
+    def _decide(self, cands, samples, splats, mean, spp, rates, filled=None) -> Decision:
         """Per candidate, the relative moment summed over pixels per camera sample of
         this pass, averaged with earlier passes' by their recorded camera samples."""
         r, k = rates
         rows = np.array([[c.light_ratio / r, c.kappa(1, self.costs.stored_per_path) / k if k
                           else 0.0, float(c.light_first_hits)] for c in cands])
         recorded = samples.lanes / samples.every
-        relative = samples.relative_moments(rows, PilotMeans.of(mean, spp), splats) / samples.lanes
+        relative = samples.relative_moments(rows, PilotMeans.of(mean, spp, filled), splats) / samples.lanes
         for c, m in zip(cands, relative):
             total, weight = self.moments.get(c, (0.0, 0.0))
             self.moments[c] = (total + m * recorded, weight + recorded)

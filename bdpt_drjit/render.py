@@ -279,6 +279,7 @@ class Renderer:
         self.pilot, self._stride, self._path_tracer = None, {}, None
         self._max_lanes = max_lanes
         self._moment_passes = set()     # passes after the pilot that re-decide
+        self._pilot_round = 0           # passes of the round the pilot opens (2 or 3)
         self.redecide = True            # False: the pilot's decision holds (cluster.py)
         if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
             self._plan_pilot(max_lanes)
@@ -310,7 +311,9 @@ class Renderer:
         """An "auto" budget: the render opens with one round of pilot passes, light and
         path tracing on the even pixels and BDPT on the odd ones (optimizer.py), so
         that every pixel has the same samples after them and the pilot costs half a
-        BDPT round; then the rest of the samples."""
+        BDPT round; then the rest of the samples.  On a large film the pilot passes
+        take pixels 0 and 2 of every 4 (optimizer.Pilot.stride) and a third pass of
+        the round gives the odd ones their sample with the budget chosen."""
         self.pilot = Pilot(mi.is_spectral,
                            self.camera.light_image_possible and self.settings.light_image)
         if self.settings.first_hits != "auto":
@@ -323,10 +326,17 @@ class Renderer:
         spp = self._accepted_count(self.settings.samples_per_pass
                                    or Pilot.spp(self.pixels, self.spp))
         even, odd = (self.pixels + 1) // 2, self.pixels // 2
-        self.plan = [(0, even, spp), (1, odd, spp)] + plan_passes(
+        if Pilot.stride(self.pixels, spp) == 2:
+            pilot_round = [(0, even, spp), (1, odd, spp)]
+            self._stride = {0: 2, 1: 2}
+        else:
+            pilot_round = [(0, (self.pixels + 3) // 4, spp), (2, (self.pixels + 1) // 4, spp),
+                           (1, odd, spp)]
+            self._stride = {0: 4, 1: 4, 2: 2}
+        self._pilot_round = len(pilot_round)
+        self.plan = pilot_round + plan_passes(
             self.spp - spp, self.pixels, max_lanes, self.settings.samples_per_pass,
             self._accepted_count)
-        self._stride = {0: 2, 1: 2}
 
     def _plan_rounds(self) -> None:
         """Re-decisions (optimizer.Pilot.redecide): the first pass of the plan that
@@ -340,13 +350,13 @@ class Renderer:
         candidate's moment), nor on a cluster (the workers' plan is fixed)."""
         if not self.redecide or self.budget.light_ratio <= 0:
             return
-        pilot_spp = self.plan[Pilot.PASSES - 1][2]
-        ends = pilot_spp + np.cumsum([n * spp / self.pixels for _, n, spp in
-                                      self.plan[Pilot.PASSES:]])
+        ends = np.cumsum([n * spp / self.pixels for _, n, spp in self.plan])
+        pilot_spp = ends[self._pilot_round - 1]
         for c in (4, 16, 64):
-            after = np.nonzero(ends >= c * pilot_spp - 1e-9)[0]
-            if len(after) and after[0] + Pilot.PASSES < len(self.plan) - 1:
-                self._moment_passes.add(int(after[0]) + Pilot.PASSES)
+            after = [i for i in range(self._pilot_round, len(self.plan) - 1)
+                     if ends[i] >= c * pilot_spp - 1e-9]
+            if after:
+                self._moment_passes.add(after[0])
 
     def _accepted_count(self, n: int) -> int:
         sampler = self.sensor.sampler().clone()
@@ -368,7 +378,7 @@ class Renderer:
         film split into pixel ranges are ever between rounds: a stop there would leave
         pixels with the light image alone (a time budget that ran out in the pilot's
         first pass wrote the odd pixels black)."""
-        if self.pilot is not None and 0 < passes < Pilot.PASSES:
+        if 0 < passes < self._pilot_round:
             return False
         return abs(spp_done - round(spp_done)) < 1e-6
 
@@ -512,7 +522,8 @@ class Renderer:
         same time as three kernels, 101-108 ns per sample against ``path``'s 100, glass
         pane 128x128 256 spp)."""
         sampler = self._sampler(index, 0, lanes, spp)
-        rays = self.camera.sample_rays(sampler, pixel_offset, n_pixels, spp)
+        rays = self.camera.sample_rays(sampler, pixel_offset, n_pixels, spp,
+                                       self._stride.get(index, 1))
         self._put_camera(rays, path_tracer_walk(self._path_tracer, self.scene, rays, sampler))
         sampler.schedule_state()
         dr.eval(*[block.tensor() for block in self.film.blocks()])
@@ -532,15 +543,22 @@ class Renderer:
                           share)
         if ctx.moments is not None:
             ctx.moments.count = cam.slot
-            self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store),
-                                             self._luminance(), self.plan[index][2]).budget
+            # Where a third pass completes the round, the pilot's pixels are the even
+            # ones, and the light image is normalized by the round's camera samples.
+            third = self._pilot_round > Pilot.PASSES
+            mean = self._luminance(sum(n * spp for _, n, spp in self.plan[:self._pilot_round])
+                                   if third else None)
+            filled = (np.arange(mean.size) % 2 == 0).reshape(mean.shape) if third else None
+            self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean,
+                                             self.plan[index][2], filled).budget
             self._plan_rounds()
 
-    def _luminance(self) -> np.ndarray:
-        """The image so far, (H, W): the mean of its colour channels."""
+    def _luminance(self, camera_samples: int | None = None) -> np.ndarray:
+        """The image so far, (H, W): the mean of its colour channels; its light image
+        normalized by ``camera_samples`` if given (film.FilmAccumulator.develop)."""
         # Reduced by Dr.Jit, then read: NumPy's reductions over the tensor's view took
         # 7.5 ms at 256x256, this 0.5.
-        image = self.tensor()
+        image = self.film.develop(camera_samples)
         h, w, channels = image.shape
         first = dr.arange(mi.UInt32, h * w) * channels
         rgb = [dr.gather(mi.Float, image.array, first + c) for c in range(3)]
@@ -565,7 +583,8 @@ class Renderer:
             per_path[1] = max(per_path[1], -(-store.splats.size() * 5 // (4 * n)))
             light.light_sampler = self._sampler(index, 1, n, spp)
         stored = store.vertices.size()
-        self._vertices_per_path = max(stored / n, 1e-3)
+        if ctx.budget.connects:     # a budget without connections stores none
+            self._vertices_per_path = max(stored / n, 1e-3)
         # A vertex cache's contributions are divided by the density of their pick.
         ctx.connection_scale = dr.opaque(mi.Float, 1.0 / max(ctx.budget.kappa(n, stored), 1e-20))
         ctx.stored = dr.opaque(mi.UInt32, max(stored, 1))

@@ -24,7 +24,7 @@ def timed_render(scene, spp: int, seed: int) -> dict:
     import bdpt_drjit
     render_mod = importlib.import_module("bdpt_drjit.render")
     from bdpt_drjit import optimizer
-    passes, decide = [], []
+    passes, decide, pilot_spp = [], [], []
     run_pass, choose = render_mod.Renderer._render_pass, optimizer.Pilot.decide
 
     def timed_pass(self, index, *args):
@@ -32,6 +32,10 @@ def timed_render(scene, spp: int, seed: int) -> dict:
         run_pass(self, index, *args)
         dr.sync_thread()
         passes.append(time.perf_counter() - t)
+        if index < getattr(self, "_pilot_round", optimizer.Pilot.PASSES):
+            # The pilot's round (a third pass gives the pixels the pilot passes left
+            # their samples on a large film): its samples per pixel of the film.
+            pilot_spp.append(self.plan[index][1] * self.plan[index][2] / self.pixels)
 
     def timed_decide(self, *args):
         t = time.perf_counter()
@@ -50,11 +54,10 @@ def timed_render(scene, spp: int, seed: int) -> dict:
     t = time.perf_counter()
     bdpt_drjit.render(scene, spp=spp, seed=seed, max_depth=8, **fixed)
     fixed_time = time.perf_counter() - t
-    pilot = sum(passes[:2])
+    pilot = sum(passes[:len(pilot_spp)])
     # The pilot's samples are part of the image: its net overhead is what it took
     # beyond what the chosen budget spends on as many samples (the rest's rate).
-    pilot_spp = optimizer.Pilot.spp(res.image.shape[0] * res.image.shape[1], spp)
-    net = pilot - pilot_spp * sum(passes[2:]) / max(spp - pilot_spp, 1)
+    net = pilot - sum(pilot_spp) * sum(passes[len(pilot_spp):]) / max(spp - sum(pilot_spp), 1)
     return {"total": total, "pilot": pilot, "decide": sum(decide), "budget": res.stats["budget"],
             "share": pilot / total, "net": net / total, "fixed": fixed_time,
             "passes": len(passes)}

@@ -302,7 +302,7 @@ class _FakeRenderer:
     """A plan of pixel ranges: 2 ranges of 50 pixels per round, 3 rounds (3 spp)."""
     plan = [(0, 50, 1), (50, 50, 1)] * 3
     pixels, spp = 100, 3
-    pilot, budget = None, None
+    pilot, budget, _pilot_round = None, None, 0
 
     def is_round_end(self, passes, spp_done):
         from bdpt_drjit.render import Renderer

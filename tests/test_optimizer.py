@@ -10,6 +10,7 @@ import pytest
 
 import mitsuba as mi
 import bdpt_drjit
+from bdpt_drjit import optimizer
 from bdpt_drjit.budgets import Budget
 from bdpt_drjit.optimizer import (DARK, Costs, MomentSample, MomentSamples, Pilot, PilotMeans,
                                   candidates, decide)
@@ -135,9 +136,10 @@ def test_a_firefly_does_not_choose_path_tracing_in_veachs_mis_scene():
 
 
 def pilot_round(scene, seed):
-    """The image of an "auto" render's pilot passes alone (luminance)."""
+    """The image of an "auto" render's pilot round alone (luminance)."""
     r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=256, seed=seed, max_depth=8)
-    for _ in range(Pilot.PASSES):
+    r.run_pass()
+    while not r.at_round_end:
         r.run_pass()
     return r.tensor().numpy()[..., :3]
 
@@ -149,16 +151,21 @@ CROPPED = ('<rfilter type="gaussian"/><boolean name="sample_border" value="true"
            '<integer name="crop_width" value="41"/><integer name="crop_height" value="37"/>')
 
 
-@pytest.mark.parametrize("film", ["box", "cropped"])
-def test_the_pilot_round_is_unbiased_on_each_half_of_the_pixels(film):
+@pytest.mark.parametrize("film", ["box", "cropped", "large"])
+def test_the_pilot_round_is_unbiased_on_each_half_of_the_pixels(film, monkeypatch):
     """Each pilot pass covers every other pixel and is a complete MIS estimator there:
     its light image keeps the splats in its own pixels (film.py).  Before, the first
     pass path-traced the even pixels and both passes' light images covered every
     pixel at half their rate: a point-light caustic, which path tracing cannot
-    render, came out of the pilot at half its brightness (3% of a 16-spp render)."""
+    render, came out of the pilot at half its brightness (3% of a 16-spp render).
+    "large": a film whose pilot passes take one pixel in 4 each (Pilot.stride; here
+    by fewer pilot lanes), and a third pass the odd pixels with the budget chosen."""
     text = open(scene_path("point-caustic.xml")).read()
     if film == "cropped":
         text = text.replace('<rfilter type="box"/>', CROPPED)
+    if film == "large":
+        monkeypatch.setitem(optimizer.PILOT_LANES, "llvm", 512)
+        monkeypatch.setitem(optimizer.PILOT_LANES, "cuda", 512)
     scene = mi.load_string(text, resx=64, resy=64)
     ours = [pilot_round(scene, seed) for seed in range(8)]
     ref = [mitsuba_render(scene, "ptracer", 64, seed=400 + s, max_depth=8) for s in range(8)]
@@ -166,9 +173,44 @@ def test_the_pilot_round_is_unbiased_on_each_half_of_the_pixels(film):
     border = f.rfilter().border_size() if f.sample_border() else 0
     (w, h), b = f.crop_size(), border
     y, x = np.mgrid[0:h, 0:w]
-    even = ((y + b) * (w + 2 * b) + x + b) % 2 == 0          # the grid's parity
-    for half, mask in (("even", even), ("odd", ~even)):
-        assert_statistically_equal(ours, ref, blocks=2, mask=mask, what="pilot, %s pixels" % half)
+    grid = (y + b) * (w + 2 * b) + x + b                     # the pilot's pixel index
+    stride = 4 if film == "large" else 2
+    for part in range(stride):
+        assert_statistically_equal(ours, ref, blocks=2, mask=grid % stride == part,
+                                   what="pilot, pixels %d of every %d" % (part, stride))
+
+
+@pytest.mark.parametrize("name, light", [("glass-pane.xml", False), ("point-caustic.xml", True)])
+def test_a_large_film_pilots_on_half_its_pixels(name, light):
+    """Past 8 x optimizer.PILOT_LANES pixels the pilot passes take pixels 0 and 2 of
+    every 4, and a third pass of the round the odd ones with the budget chosen: the
+    round ends after it, not before, and the decision is the one smaller films make
+    (test_path_tracing_behind_a_glass_pane, test_light_subpaths_for_a_point_caustic)."""
+    res = int(np.ceil(np.sqrt(8 * optimizer._pilot_lanes())))
+    scene = mi.load_file(scene_path(name), resx=res, resy=res)
+    r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=64, seed=1, max_depth=8)
+    assert [p[0] for p in r.plan[:3]] == [0, 2, 1] and [r._stride[i] for i in range(3)] == [4, 4, 2]
+    r.run_pass()
+    for _ in range(2):
+        assert not r.at_round_end
+        r.run_pass()
+    assert r.at_round_end and r.spp_done == 1
+    assert (r.budget.light_ratio > 0) == light, r.pilot.decision.describe()
+
+
+def test_means_of_a_pilot_on_half_the_pixels():
+    """Where the pilot's passes left pixels without samples, its means average the
+    pixels that have them: an even image is its own mean, and a lone sample is still
+    not its own mean (test_a_sample_is_not_its_own_mean)."""
+    filled = (np.arange(17 * 17) % 2 == 0).reshape(17, 17)
+    image = np.where(filled, 0.5, 0.0)
+    means = PilotMeans.of(image, spp=1, filled=filled)
+    assert np.array(means.blurred) == pytest.approx(0.5)
+    image = np.zeros((17, 17))
+    image[8, 8] = 4.0
+    means = PilotMeans.of(image, spp=2, filled=filled)
+    index = mi.UInt32([8 * 17 + 8])
+    assert np.array(means.squared(index, mi.Float([8.0]))) == pytest.approx([means.floor])
 
 
 def test_dark_pixels_weigh_as_a_tenth_of_the_mean():
@@ -291,11 +333,11 @@ def test_every_budget_estimates_the_pilots_moments(budget):
     from bdpt_drjit.optimizer import covers
     scene = mi.load_file(scene_path("cornell-box.xml"), resx=256, resy=256)
     r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=64, seed=1, max_depth=5)
-    for _ in range(Pilot.PASSES):
+    for _ in range(r._pilot_round):
         r.run_pass()
     pilot = dict(r.pilot.moments)
-    r.budget, r._moment_passes = budget, {Pilot.PASSES}
-    r.plan.insert(Pilot.PASSES, (0, r.pixels, 16))
+    r.budget, r._moment_passes = budget, {r._pilot_round}
+    r.plan.insert(r._pilot_round, (0, r.pixels, 16))
     r.run_pass()
     checked = 0
     for c, (total, n) in r.pilot.moments.items():
