@@ -186,9 +186,12 @@ def test_a_large_film_pilots_on_half_its_pixels(name, light):
     every 4, and a third pass of the round the odd ones with the budget chosen: the
     round ends after it, not before, and the decision is the one smaller films make
     (test_path_tracing_behind_a_glass_pane, test_light_subpaths_for_a_point_caustic)."""
-    res = int(np.ceil(np.sqrt(8 * optimizer._pilot_lanes())))
+    res = int(np.ceil(np.sqrt(8 * optimizer._pilot_lanes())))     # 2.1M pixels on a GPU
     scene = mi.load_file(scene_path(name), resx=res, resy=res)
-    r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=64, seed=1, max_depth=8)
+    # A film of more pixels than a pass's memory holds lanes renders in pixel ranges,
+    # without a pilot; the budget covers the pilot round here (the GPU's film).
+    r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=64, seed=1, max_depth=8,
+                                                  memory_budget=8 << 30)
     assert [p[0] for p in r.plan[:3]] == [0, 2, 1] and [r._stride[i] for i in range(3)] == [4, 4, 2]
     r.run_pass()
     for _ in range(2):
