@@ -264,13 +264,15 @@ class PilotMeans:
         pilot took only some (Pilot.stride); the blur averages over those alone."""
         h, w = image.shape
         k = 2 * BLUR + 1
-        f = np.ones((h, w)) if filled is None else filled.astype(float)
-        cover = np.maximum(_blur(f), 1.0 / (k * k))     # share of a window with samples
-        image = image * f
+        cover, mean = 1.0, float(np.mean(image))      # share of a window with samples
+        if filled is not None:
+            cover = np.maximum(_blur(filled.astype(float)), 1.0 / (k * k))
+            image = image * filled
+            mean = float(image.sum() / filled.sum())
         own = np.outer(_self_counts(h), _self_counts(w)) / (k * k * max(spp, 1) * cover)
         return cls(blurred=mi.Float((_blur(image) / cover).ravel().astype(np.float32)),
                    own=mi.Float(own.ravel().astype(np.float32)),
-                   floor=DARK * max(float(image.sum() / f.sum()) ** 2, 1e-12))
+                   floor=DARK * max(mean ** 2, 1e-12))
 
     def squared(self, pixel: mi.UInt32, value: mi.Float) -> mi.Float:
         """The squared mean a sample of luminance ``value`` at ``pixel`` divides by."""
