@@ -543,15 +543,23 @@ class Renderer:
                           share)
         if ctx.moments is not None:
             ctx.moments.count = cam.slot
-            # Where a third pass completes the round, the pilot's pixels are the even
-            # ones, and the light image is normalized by the round's camera samples.
+            # Where a third pass completes the round, the light image is normalized by
+            # the round's camera samples and the means are the pilot's pixels'.
             third = self._pilot_round > Pilot.PASSES
             mean = self._luminance(sum(n * spp for _, n, spp in self.plan[:self._pilot_round])
                                    if third else None)
-            filled = (np.arange(mean.size) % 2 == 0).reshape(mean.shape) if third else None
+            filled = self._pilot_pixels(mean.shape) if third else None
             self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean,
                                              self.plan[index][2], filled).budget
             self._plan_rounds()
+
+    def _pilot_pixels(self, shape) -> np.ndarray:
+        """The crop pixels (H, W) of a quarter-film pilot's passes: those whose index
+        in the sampled grid (camera.sample_rays: the crop plus a sampled filter border)
+        is even."""
+        b = camera_stage.sampled_border(self.sensor.film())
+        y, x = np.mgrid[0:shape[0], 0:shape[1]]
+        return ((y + b) * (shape[1] + 2 * b) + x + b) % 2 == 0
 
     def _luminance(self, camera_samples: int | None = None) -> np.ndarray:
         """The image so far, (H, W): the mean of its colour channels; its light image

@@ -201,6 +201,31 @@ def test_a_large_film_pilots_on_half_its_pixels(name, light):
     assert (r.budget.light_ratio > 0) == light, r.pilot.decision.describe()
 
 
+def test_the_pixels_of_a_quarter_film_pilot_in_a_cropped_film(monkeypatch):
+    """The means of a quarter-film pilot average the crop pixels its passes sampled:
+    every camera ray of its two passes that lands in the crop window lands on one, and
+    every ray of the third pass on another.  The sampled grid has a filter border of
+    1 pixel around a crop window of even width, so the grid's parity is not the crop
+    window's (which it took at first)."""
+    monkeypatch.setitem(optimizer.PILOT_LANES, "llvm", 64)
+    monkeypatch.setitem(optimizer.PILOT_LANES, "cuda", 64)
+    cropped = CROPPED.replace("gaussian", "tent").replace('"41"', '"40"')
+    text = open(scene_path("point-caustic.xml")).read().replace('<rfilter type="box"/>', cropped)
+    scene = mi.load_string(text, resx=64, resy=64)
+    r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=64, seed=1, max_depth=8)
+    assert r._pilot_round == 3
+    (w, h) = scene.sensors()[0].film().crop_size()
+    filled = r._pilot_pixels((h, w)).ravel()
+    for index, expect in ((0, True), (1, True), (2, False)):
+        offset, n, spp = r.plan[index]
+        rays = r.camera.sample_rays(r._sampler(index, 0, n * spp, spp), offset, n, spp,
+                                    r._stride[index])
+        pos = np.array(rays.pos)
+        inside = (pos[0] >= 5) & (pos[0] < 5 + w) & (pos[1] >= 3) & (pos[1] < 3 + h)
+        pixel = np.array(rays.pixel)[inside]
+        assert len(pixel) > 100 and np.all(filled[pixel] == expect), index
+
+
 def test_means_of_a_pilot_on_half_the_pixels():
     """Where the pilot's passes left pixels without samples, its means average the
     pixels that have them: an even image is its own mean, and a lone sample is still
