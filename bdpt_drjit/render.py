@@ -271,24 +271,8 @@ class Renderer:
         if self.spp <= 0:
             raise ValueError("bdpt: spp must be positive, got %d" % self.spp)
         layers = self.strategies.layers() if strategy_images else []
-        lane_bytes = (_LANE_BYTES + _VERTICES_PER_LANE * RECORD_BYTES
-                      + _SPLATS_PER_LANE * SPLAT_BYTES + len(layers) * 16)
-        max_lanes = min(max(1024, self.settings.memory_budget // lane_bytes), 2 ** 31)
-        self.plan = plan_passes(self.spp, self.pixels, max_lanes, self.settings.samples_per_pass,
-                                self._accepted_count)
-        self.pilot, self._stride, self._path_tracer = None, {}, None
-        self._max_lanes = max_lanes
-        self._moment_passes = set()     # passes after the pilot that re-decide
-        self._pilot_round = 0           # passes of the round the pilot opens (2 or 3)
+        self._plan(fixed, layers)
         self.redecide = True            # False: the pilot's decision holds (cluster.py)
-        if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
-            self._plan_pilot(max_lanes)
-            if not self.media.present:
-                # Where the pilot chooses path tracing, Mitsuba's path renders the rest.
-                self._path_tracer = mi.load_dict({
-                    "type": "path", "max_depth": self.settings.max_depth,
-                    "rr_depth": self.settings.rr_depth,
-                    "hide_emitters": self.settings.hide_emitters})
         aov_list = aovs.parse(self.settings.aovs)
         self.aovs = aovs.AOVs(scene, aov_list) if aov_list else None
         self.film = FilmAccumulator(film, coalesce=self.spp >= 4, layers=layers,
@@ -306,6 +290,27 @@ class Renderer:
         self._capacity = [_VERTICES_PER_LANE, _SPLATS_PER_LANE]
         self._vertices_per_path = 3.0   # stored light vertices per light subpath, last pass
         self.kernel_history = []        # kernels the pilot's timing took from Dr.Jit's history
+
+    def _plan(self, fixed: Budget | None, layers: list) -> None:
+        """The passes: equal ones that fit the memory budget, opened by a pilot round
+        where the budget is "auto" (not for fewer than MIN_SPP samples, nor for a film
+        rendered in pixel ranges)."""
+        lane_bytes = (_LANE_BYTES + _VERTICES_PER_LANE * RECORD_BYTES
+                      + _SPLATS_PER_LANE * SPLAT_BYTES + len(layers) * 16)
+        max_lanes = min(max(1024, self.settings.memory_budget // lane_bytes), 2 ** 31)
+        self.plan = plan_passes(self.spp, self.pixels, max_lanes, self.settings.samples_per_pass,
+                                self._accepted_count)
+        self.pilot, self._stride, self._path_tracer = None, {}, None
+        self._moment_passes = set()     # passes after the pilot that re-decide
+        self._pilot_round = 0           # passes of the round the pilot opens (2 or 3)
+        if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
+            self._plan_pilot(max_lanes)
+            if not self.media.present:
+                # Where the pilot chooses path tracing, Mitsuba's path renders the rest.
+                self._path_tracer = mi.load_dict({
+                    "type": "path", "max_depth": self.settings.max_depth,
+                    "rr_depth": self.settings.rr_depth,
+                    "hide_emitters": self.settings.hide_emitters})
 
     def _plan_pilot(self, max_lanes: int) -> None:
         """An "auto" budget: the render opens with one round of pilot passes, light and
