@@ -1,6 +1,6 @@
 """The pilot's share of a default ("auto" budget) render: each pass and the decision
 timed, on the Cornell box; "net" subtracts what the chosen budget would have spent on
-the pilot's samples (1 spp of the image), which the image keeps.  Then the whole cost
+the pilot round's samples (1 spp of the image), which the image keeps.  Then the whole cost
 of choosing: the default's time against a render fixed to the budget it chose last,
 same seed, next to it (pilot, re-decisions and the shorter passes they need).
 
@@ -35,6 +35,7 @@ def timed_render(scene, spp: int, seed: int) -> dict:
         if index < getattr(self, "_pilot_round", optimizer.Pilot.PASSES):
             # The pilot's round (a third pass gives the pixels the pilot passes left
             # their samples on a large film): its samples per pixel of the film.
+            # (getattr: checkouts older than the third pass, for A/B runs.)
             pilot_spp.append(self.plan[index][1] * self.plan[index][2] / self.pixels)
 
     def timed_decide(self, *args):
