@@ -585,8 +585,9 @@ class Renderer:
             return None, mi.UInt32(0)
         light = ctx.for_light_subpaths()
         per_path = self._capacity
+        timed = self.pilot is not None and index < Pilot.PASSES
         while True:
-            store = LightVertexStore(n, n * per_path[0], n * per_path[1])
+            store = LightVertexStore(n, n * per_path[0], n * per_path[1], zeroed=timed)
             light_rays = trace_light_subpaths(light, store)
             dr.eval(light_rays, store.vertices.items, store.splats.items, store.first,
                     *([] if ctx.moments is None else [ctx.moments.items, ctx.moments.count]))
