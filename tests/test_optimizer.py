@@ -392,3 +392,28 @@ def test_re_decisions_after_4_16_and_64_times_the_pilots_samples():
     assert [spp for spp, _ in r.pilot.rounds] == [16, 64, 256]
     text = r.result().stats["decision"]
     assert all("after %d spp light_paths=" % spp in text for spp in (16, 64, 256)), text
+
+
+def test_the_pilots_buffers_are_touched_outside_its_timed_kernels():
+    """The pilot times its walks by their JIT kernels; the moment buffer and its light
+    pools are filled by memsets first (vertices.LightVertexStore), so that the fresh
+    pages' faults are not charged to connections and light subpaths (they made
+    connections look 1.5-9x dearer in a process's first render)."""
+    import drjit as dr
+    from bdpt_drjit.vertices import LightVertexStore
+    def kernels(make):
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+            dr.kernel_history()
+            made = make()
+            dr.sync_thread()
+            return made, [(e["type"], e["size"]) for e in dr.kernel_history()]
+
+    lanes = 4096
+    moments, launched = kernels(lambda: MomentSamples(lanes))
+    slots = lanes * MomentSamples.SLOTS
+    assert (dr.KernelType.Memset, slots * 4) in launched             # f2 etc., 4 bytes each
+    assert all(size < slots for kind, size in launched if kind == dr.KernelType.JIT)
+    store, launched = kernels(lambda: LightVertexStore(lanes, 4 * lanes, 5 * lanes, zeroed=True))
+    assert dr.KernelType.JIT not in {kind for kind, _ in launched}  # the light lap's own
+    assert (dr.KernelType.Memset, 4 * lanes * 4) in launched
+    assert not np.any(np.array(moments.items.f2)) and not np.any(np.array(store.vertices.items.beta))
