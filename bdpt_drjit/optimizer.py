@@ -124,10 +124,9 @@ class MomentSamples:
     def __init__(self, lanes: int, every: int = 1):
         self.lanes, self.every = lanes, every
         # Zeroed by a memset, which the pilot's timer does not count: written first by
-        # the timed camera walk, the fresh pages' faults were charged to connections
-        # (the pilot's alone; the passes after it record no moments), 1.5-9x their
-        # cost (Veach's MIS scene 1.6-5.8e-7 s per sample against 0.65e-7; see
-        # vertices.LightVertexStore).
+        # the timed camera walk, the fresh pages' faults were charged to connections,
+        # 1.5-9x their cost (Veach's MIS scene 1.6-5.8e-7 s per sample against 0.65e-7;
+        # see vertices.LightVertexStore).  Only moment passes have this buffer.
         self.items = empty(MomentSample, -(-lanes // every) * self.SLOTS, zeroed=True)
         self.count = dr.zeros(mi.UInt32, lanes)           # slots used, per lane
         self._every = dr.opaque(mi.UInt32, every)

@@ -403,7 +403,7 @@ class Renderer:
             dr.flush_malloc_cache()
         self._last_lanes = lanes
         start = time.perf_counter()
-        pilot = self.pilot is not None and index < Pilot.PASSES
+        pilot = self._is_pilot_pass(index)
         history = dr.flag(dr.JitFlag.KernelHistory) or pilot
         with dr.suspend_grad(), dr.scoped_set_flag(dr.JitFlag.KernelHistory, history):
             self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
@@ -412,6 +412,10 @@ class Renderer:
         self.spp_done += n_pixels * spp / self.pixels
 
     # -- one pass -----------------------------------------------------------------------
+    def _is_pilot_pass(self, index: int) -> bool:
+        """One of the pilot's two timed passes (not the third pass of its round)."""
+        return self.pilot is not None and index < Pilot.PASSES
+
     def _sampler(self, index: int, stream: int, lanes: int, spp: int) -> mi.Sampler:
         sampler = self.sensor.sampler().clone()
         sampler.set_sample_count(spp)
@@ -429,7 +433,7 @@ class Renderer:
 
     def _pass_rules(self, index: int):
         """(budget, heuristic, moment samples or None) of pass ``index``."""
-        if self.pilot is not None and index < Pilot.PASSES:
+        if self._is_pilot_pass(index):
             budget, heuristic, moments = self.pilot.budget(index)
             return budget, heuristic or self.settings.mis, moments
         if index in self._moment_passes and self.budget.light_ratio > 0:
@@ -461,7 +465,7 @@ class Renderer:
         if (self._path_tracer is not None and index >= Pilot.PASSES
                 and self.budget == PATH_TRACING):
             return self._path_traced_pass(index, pixel_offset, n_pixels, spp, lanes)
-        timer = _StageTimer(self.pilot is not None and index < Pilot.PASSES, self.kernel_history)
+        timer = _StageTimer(self._is_pilot_pass(index), self.kernel_history)
         # Stage 1: camera rays.
         sampler = self._sampler(index, 0, lanes, spp)
         rays = self.camera.sample_rays(sampler, pixel_offset, n_pixels, spp,
@@ -585,9 +589,9 @@ class Renderer:
             return None, mi.UInt32(0)
         light = ctx.for_light_subpaths()
         per_path = self._capacity
-        timed = self.pilot is not None and index < Pilot.PASSES
         while True:
-            store = LightVertexStore(n, n * per_path[0], n * per_path[1], zeroed=timed)
+            store = LightVertexStore(n, n * per_path[0], n * per_path[1],
+                                     zeroed=self._is_pilot_pass(index))
             light_rays = trace_light_subpaths(light, store)
             dr.eval(light_rays, store.vertices.items, store.splats.items, store.first,
                     *([] if ctx.moments is None else [ctx.moments.items, ctx.moments.count]))
