@@ -407,6 +407,9 @@ class Renderer:
         history = dr.flag(dr.JitFlag.KernelHistory) or pilot
         with dr.suspend_grad(), dr.scoped_set_flag(dr.JitFlag.KernelHistory, history):
             self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
+            # A pass counts once it is rendered: Dr.Jit launches kernels asynchronously,
+            # and a pass that reads nothing back (Mitsuba's path) would only be queued.
+            dr.sync_thread()
         self.time += time.perf_counter() - start
         self.passes_done += 1
         self.spp_done += n_pixels * spp / self.pixels

@@ -218,6 +218,56 @@ def test_signal_stops_after_current_pass(tmp_path, sig):
     assert not [f for f in written(tmp_path) if f.endswith(".tmp")]
 
 
+def test_a_signal_stops_a_render_whose_passes_run_mitsubas_path(tmp_path):
+    """Where the default budget path-traces, the passes run Mitsuba's path, which reads
+    nothing back: they were queued, not rendered, and a Ctrl-C waited for all of them
+    (minutes).  Now it stops within a pass and writes the passes done."""
+    out = tmp_path / "pane.exr"
+    proc = subprocess.Popen([sys.executable, "-m", "bdpt_drjit", "render",
+                             str(ROOT / "scenes" / "glass-pane.xml"), "--res", "64x64",
+                             "--spp", "1000000", "-o", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=cli_env())
+    try:
+        lines = []
+        for line in proc.stderr:     # the progress after the pilot's round
+            lines.append(line)
+            if line.startswith("bdpt: [") and int(line.split()[2].split("/")[0]) > 2:
+                break
+        time.sleep(4)                # long enough to queue thousands of passes before
+        proc.send_signal(signal.SIGINT)
+        start = time.perf_counter()
+        _, stderr = proc.communicate(timeout=60)
+        waited = time.perf_counter() - start
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    stderr = "".join(lines) + stderr
+    assert proc.returncode == 130, stderr
+    assert waited < 10, stderr
+    img, meta = read_exr(out)
+    assert 0 < meta["spp"] < 1000000 and np.all(np.isfinite(img)) and img.mean() > 0
+    assert "light_paths=0" in meta["budget"], meta["budget"]
+
+
+def test_a_time_budget_holds_where_the_passes_run_mitsubas_path(tmp_path):
+    """The time budget of a render whose passes run Mitsuba's path (the pilot chose path
+    tracing behind the glass pane): the reported render time is the time the passes
+    took (--time 5 took 29 s before, its passes counted before they ran)."""
+    out = tmp_path / "pane.exr"
+    start = time.perf_counter()
+    p = ok(run_cli("render", ROOT / "scenes" / "glass-pane.xml", "--res", "64x64", "--spp",
+                   1000000, "--time", 3, "-o", out))
+    elapsed = time.perf_counter() - start
+    _, meta = read_exr(out)
+    assert "light_paths=0" in meta["budget"] and "time budget" in p.stderr
+    assert 2.7 <= meta["render_time"] < 3.3
+    # The process's wall time: the render and Python's, Mitsuba's and the scene's start
+    # (2-3 s here; before, the queued passes took 8 s more).
+    assert elapsed < meta["render_time"] + 5, (elapsed, meta["render_time"])
+
+
 def test_time_budget(tmp_path):
     out = tmp_path / "timed.exr"
     start = time.perf_counter()

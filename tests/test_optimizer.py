@@ -4,10 +4,12 @@ The decision rests on measured kernel times, so these tests check choices with w
 margins (the decision the optimizer logs, never a timing), and images statistically
 (every budget is unbiased, so any choice must agree with the reference)."""
 import sys
+import time
 
 import numpy as np
 import pytest
 
+import drjit as dr
 import mitsuba as mi
 import bdpt_drjit
 from bdpt_drjit import optimizer
@@ -65,6 +67,25 @@ def test_mitsuba_path_renders_what_the_pilot_path_traces(hide_emitters):
     ref = [mitsuba_render(scene, "path", 256, seed=400 + s, max_depth=6, hide_emitters=hide_emitters)
            for s in range(8)]
     assert_statistically_equal([r.image for r in res], ref, what="delegated path tracing")
+
+
+def test_a_path_traced_pass_is_rendered_when_it_is_counted():
+    """Mitsuba's path passes launch their kernel without reading anything back: on the
+    LLVM backend it ran asynchronously, so passes were counted (time, spp, progress)
+    long before they were rendered, and a 1 s time budget queued thousands of them
+    (a CLI render with --time 5 took 29 s).  The render time counts a pass once its
+    work is done: after it, nothing is left to wait for."""
+    scene = mi.load_file(scene_path("glass-pane.xml"), resx=64, resy=64)
+    r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=10 ** 6, seed=1, max_depth=8,
+                                                  samples_per_pass=4)
+    start = time.perf_counter()
+    while r.time < 1.0:
+        r.run_pass()
+    dr.sync_thread()
+    wall = time.perf_counter() - start
+    assert r.budget.light_ratio == 0, r.budget
+    assert r.path_tracer_spp > 0, "the premise: Mitsuba's path renders the passes"
+    assert wall <= 1.1 * r.time, (wall, r.time, r.passes_done)
 
 
 def test_media_keep_the_engine_path_tracer():
@@ -284,7 +305,6 @@ def test_the_decision_compiles_nothing_and_reruns_no_walk(box):
     small kernels, all from the cache.  It used to read the pilot's slot counts after
     the camera walk had run, which ran the whole walk again (~1700 operations, 23 ms at
     256x256), and to bake kappa into a reduction kernel compiled anew each time."""
-    import drjit as dr
     from bdpt_drjit import optimizer
     seen = []
     original = optimizer.MomentSamples.relative_moments
@@ -331,7 +351,6 @@ def test_a_later_moment_pass_records_every_nth_lane():
     """A moment pass after the pilot records the camera side of every ``every``-th
     lane (its memory stays the pilot's) and counts each recorded sample ``every``
     times; its splats count with the weight they come with."""
-    import drjit as dr
     samples = MomentSamples(4, every=2)
     lane = dr.arange(mi.UInt32, 4)
     samples.count = samples.add(mi.UInt32(0), lane, lane, mi.Spectrum(mi.Float([1.0, 5.0, 1.0, 5.0])),
@@ -399,7 +418,6 @@ def test_the_pilots_buffers_are_touched_outside_its_timed_kernels():
     pools are filled by memsets first (vertices.LightVertexStore), so that the fresh
     pages' faults are not charged to connections and light subpaths (they made
     connections look 1.5-9x dearer in a process's first render)."""
-    import drjit as dr
     from bdpt_drjit.vertices import LightVertexStore
     def kernels(make):
         with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
