@@ -37,15 +37,16 @@ candidate's moment per camera sample is averaged over the moment passes so far, 
 the means are the whole image's so far.  After path tracing there is nothing to
 re-decide from: its samples give no light subpath's density.
 
-Costs come from this engine's own kernel times in the pilot (no constants fitted to
-another renderer): seconds per camera sample of a walk without connections and per
-light subpath of a light walk without them (the first pass), for storing a light
-subpath's vertices (the rest of the BDPT pass's light walk), and per camera sample
-for connecting to a whole light subpath; a vertex cache of M costs M / (stored
-vertices per light subpath) of the latter.  Timing the light walk inside the BDPT
-pass alone made light subpaths look twice as dear as they are to budgets without
-connections (the point-light caustic: 1.4e-7 s against 0.7e-7 s measured by
-rendering).
+Costs are counted, not timed: the pilot counts per camera sample the rays of the
+camera walk with s <= 1 (the first pass), per light subpath the rays of the light walk
+and its t = 1 splats, the light vertices it stores, and the connections' shadow rays
+(what the BDPT pass's camera walk traces beyond the first pass's); a vertex cache of M
+connects M / (stored vertices per light subpath) of them.  Each count is priced by
+the machine's unit cost (units.py, measured once by render.calibrate), and path
+tracing, where Mitsuba's path renders it, by that megakernel's cost per ray.  The
+counts are deterministic for a seed, so the decision is too: timing the pilot's
+kernels chose different budgets for one seed with the machine's load, the kernel
+cache (a first render priced compilation) and the integrator's construction.
 """
 from __future__ import annotations
 
@@ -56,14 +57,16 @@ import mitsuba as mi
 import numpy as np
 
 from .budgets import Budget
+from .units import UnitCosts
 from .vertices import empty, gather
 
 RATIOS = (0.0, 0.25, 0.5, 1.0, 2.0)
 FIRST_HIT_RATIOS = (2.0, 4.0)   # light subpaths per camera sample of light_first_hits ones
 CACHE_PICKS = (1, 2)
 MIN_SPP = 16                   # fewer samples: the pilot would cost too much
-# A pilot pass's samples at least: its kernel times must grow with the work, which on
-# a GPU takes about a wave of threads (an H100 holds 132 x 2048).
+# A pilot pass's samples at least (for its moments), and the calibration's occupancy
+# (render.calibrate): a kernel's time grows with its work from about a wave of threads
+# on a GPU (an H100 holds 132 x 2048).
 PILOT_LANES = {"llvm": 1 << 14, "cuda": 1 << 18}
 BLUR = 4                       # radius of the box filter on the pilot's mean image
 
@@ -293,25 +296,37 @@ def _self_counts(n: int) -> np.ndarray:
 
 @dataclass
 class Costs:
-    """Seconds of kernel time, measured in the pilot."""
-    path_per_sample: float = 0.0      # camera walk with s <= 1, per camera sample
-    light_per_path: float = 0.0       # light walk with t = 1 splats, per light subpath
-    store_per_path: float = 0.0       # storing its vertices for connections, the same
-    connect_per_sample: float = 0.0   # connecting to a whole light subpath, per sample
-    stored_per_path: float = 1.0      # stored light vertices per light subpath
+    """A camera sample's work, counted in the pilot, and the machine's price of each
+    unit of it (units.UnitCosts): a candidate's cost reads no clock."""
+    units: UnitCosts = field(default_factory=UnitCosts)
+    camera_rays: float = 0.0          # per camera sample: the camera walk with s <= 1
+    light_rays: float = 0.0           # per light subpath: the light walk, t = 1 splats
+    stored_per_path: float = 1.0      # light vertices stored per light subpath
+    connection_rays: float = 0.0      # per camera sample: connecting to whole subpaths
     first_hit_share: float = 1.0      # of the camera walk's rays, those that a
                                       # light_first_hits budget traces (z_1's ray, and
                                       # all of a lane whose z_1 is delta)
+    path_tracer: bool = False         # path tracing runs as Mitsuba's path (render.py)
 
     def of(self, b: Budget) -> float:
-        camera = self.path_per_sample * (self.first_hit_share if b.light_first_hits else 1.0)
-        cost = camera + b.light_ratio * self.light_per_path
+        u = self.units
+        if b.light_ratio <= 0:
+            return self.camera_rays * (u.path_ray if self.path_tracer else u.camera_ray)
+        share = self.first_hit_share if b.light_first_hits else 1.0
+        cost = self.camera_rays * u.camera_ray * share + b.light_ratio * self.light_rays * u.light_ray
         if b.connects:
-            cost += b.light_ratio * self.store_per_path
-            full = self.connect_per_sample
+            cost += b.light_ratio * self.stored_per_path * u.stored_vertex
+            full = self.connection_rays * u.connection
             cost += full if b.connections == "all" else full * min(
                 1.0, b.connections / max(self.stored_per_path, 1e-3))
         return cost
+
+    def describe(self) -> str:
+        """The counts (the units: UnitCosts.describe)."""
+        return ("camera_rays=%.4g light_rays=%.4g stored_per_path=%.4g connection_rays=%.4g "
+                "first_hit_share=%.4g path_tracer=%d"
+                % (self.camera_rays, self.light_rays, self.stored_per_path,
+                   self.connection_rays, self.first_hit_share, self.path_tracer))
 
 
 def covers(current: Budget, candidate: Budget) -> bool:
@@ -387,16 +402,16 @@ class Pilot:
         memory budget a film already renders in pixel ranges, without a pilot."""
         return 4 if spp == 1 and pixels // 4 >= 2 * _pilot_lanes() else 2
 
-    def __init__(self, spectral: bool, light_image: bool = True):
+    def __init__(self, spectral: bool, light_image: bool = True,
+                 units: UnitCosts | None = None):
         self.candidates = candidates(spectral, light_image)
         self.light_image = light_image
-        self.costs = Costs()
+        self.costs = Costs(units or UnitCosts())
         self.decision: Decision | None = None     # the latest
         self.first: Decision | None = None        # the pilot's
         self.rounds: list = []                    # (spp, budget) of each re-decision
         self.moments: dict = {}                   # candidate: (sum of estimates x
                                                   # recorded samples, recorded samples)
-        self._path_camera = 0.0          # seconds per sample of the first pass
 
     def budget(self, index: int):
         """(budget, heuristic, with moments) of pilot pass ``index``: light tracing with
@@ -405,18 +420,18 @@ class Pilot:
             return Budget(1.0 if self.light_image else 0.0, 0), None, False
         return Budget(1.0, "all"), "balance", True
 
-    def record(self, index: int, light_seconds: float, camera_seconds: float, lanes: int,
-               light_subpaths: int, stored: int, first_hit_share: float = 1.0) -> None:
-        """Kernel times of a pilot pass's walks (compilation excluded)."""
+    def record(self, index: int, lanes: int, camera_rays: int, light_subpaths: int,
+               light_rays: int, stored: int, first_hit_share: float = 1.0) -> None:
+        """The work a pilot pass counted: rays of its camera walk (over ``lanes``
+        camera samples) and of its light walk, and the light vertices it stored."""
+        per_sample = camera_rays / max(lanes, 1)
         if index == 0:
-            self._path_camera = camera_seconds / lanes
-            self.costs.path_per_sample = self._path_camera
+            self.costs.camera_rays = per_sample
             self.costs.first_hit_share = first_hit_share
-            self.costs.light_per_path = light_seconds / max(light_subpaths, 1)
+            self.costs.light_rays = light_rays / max(light_subpaths, 1)
             return
-        self.costs.store_per_path = max(light_seconds / max(light_subpaths, 1)
-                                        - self.costs.light_per_path, 0.0)
-        self.costs.connect_per_sample = max(camera_seconds / lanes - self._path_camera, 0.0)
+        # The BDPT pass's camera walk traces the same rays and its connections'.
+        self.costs.connection_rays = max(per_sample - self.costs.camera_rays, 0.0)
         self.costs.stored_per_path = stored / max(light_subpaths, 1)
 
     def decide(self, samples: MomentSamples, splats, mean: np.ndarray, spp: int,

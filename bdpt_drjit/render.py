@@ -17,6 +17,7 @@ pixels at 1 sample for very large films.  Peak memory does not grow with spp.
 from __future__ import annotations
 
 import os
+import sys
 import time
 from dataclasses import dataclass, field, replace
 
@@ -32,6 +33,8 @@ from .film import FilmAccumulator
 from .media import Media
 from .mis import Weights
 from .settings import Settings
+from . import units
+from .units import UnitCosts
 from .budgets import BDPT, PATH_TRACING, Budget, fixed_budget
 from .optimizer import MIN_SPP, MomentSample, MomentSamples, Pilot, luminance
 from .strategies import StrategyImages, StrategySet
@@ -239,7 +242,10 @@ class Renderer:
     """
 
     def __init__(self, scene: mi.Scene, sensor=0, spp: int | None = None, seed: int = 0,
-                 strategy_images: bool = False, **settings):
+                 strategy_images: bool = False, unit_costs: UnitCosts | None = None,
+                 **settings):
+        """``unit_costs``: the prices of the pilot's counts (units.py); by default the
+        machine's calibration, measured on first use."""
         check_variant()
         self.sensor = camera_stage.select_sensor(scene, sensor)
         self.camera = camera_stage.make_camera(self.sensor)
@@ -271,6 +277,8 @@ class Renderer:
         if self.spp <= 0:
             raise ValueError("bdpt: spp must be positive, got %d" % self.spp)
         layers = self.strategies.layers() if strategy_images else []
+        self._unit_costs = unit_costs
+        self.timings = None             # calibrate(): kernel seconds of the pilot's walks
         self._plan(fixed, layers)
         self.redecide = True            # False: the pilot's decision holds (cluster.py)
         aov_list = aovs.parse(self.settings.aovs)
@@ -289,7 +297,7 @@ class Renderer:
         # walk twice per render: 7% of its time at 128x128, 256 spp).
         self._capacity = [_VERTICES_PER_LANE, _SPLATS_PER_LANE]
         self._vertices_per_path = 3.0   # stored light vertices per light subpath, last pass
-        self.kernel_history = []        # kernels the pilot's timing took from Dr.Jit's history
+        self.kernel_history = []        # kernels calibrate()'s timing took from Dr.Jit's history
 
     def _plan(self, fixed: Budget | None, layers: list) -> None:
         """The passes: equal ones that fit the memory budget, opened by a pilot round
@@ -311,6 +319,7 @@ class Renderer:
                     "type": "path", "max_depth": self.settings.max_depth,
                     "rr_depth": self.settings.rr_depth,
                     "hide_emitters": self.settings.hide_emitters})
+            self.pilot.costs.path_tracer = True
 
     def _plan_pilot(self, max_lanes: int) -> None:
         """An "auto" budget: the render opens with one round of pilot passes, light and
@@ -320,7 +329,8 @@ class Renderer:
         take pixels 0 and 2 of every 4 (optimizer.Pilot.stride) and a third pass of
         the round gives the odd ones their sample with the budget chosen."""
         self.pilot = Pilot(mi.is_spectral,
-                           self.camera.light_image_possible and self.settings.light_image)
+                           self.camera.light_image_possible and self.settings.light_image,
+                           self._unit_costs or units.load() or calibrate())
         if self.settings.first_hits != "auto":
             light = self.settings.first_hits == "light_image"
             self.pilot.candidates = [b for b in self.pilot.candidates
@@ -403,8 +413,8 @@ class Renderer:
             dr.flush_malloc_cache()
         self._last_lanes = lanes
         start = time.perf_counter()
-        pilot = self._is_pilot_pass(index)
-        history = dr.flag(dr.JitFlag.KernelHistory) or pilot
+        timed = self.timings is not None and self._is_pilot_pass(index)
+        history = dr.flag(dr.JitFlag.KernelHistory) or timed
         with dr.suspend_grad(), dr.scoped_set_flag(dr.JitFlag.KernelHistory, history):
             self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
             # A pass counts once it is rendered: Dr.Jit launches kernels asynchronously,
@@ -468,7 +478,8 @@ class Renderer:
         if (self._path_tracer is not None and index >= Pilot.PASSES
                 and self.budget == PATH_TRACING):
             return self._path_traced_pass(index, pixel_offset, n_pixels, spp, lanes)
-        timer = _StageTimer(self._is_pilot_pass(index), self.kernel_history)
+        timer = _StageTimer(self.timings is not None and self._is_pilot_pass(index),
+                            self.kernel_history)
         # Stage 1: camera rays.
         sampler = self._sampler(index, 0, lanes, spp)
         rays = self.camera.sample_rays(sampler, pixel_offset, n_pixels, spp,
@@ -494,9 +505,14 @@ class Renderer:
         if store is not None:
             self._put_splats(index, store, ctx, lanes, pixel_offset)
         self.film.camera_samples += lanes
-        self.rays += int(dr.sum(cam.rays)[0]) + int(dr.sum(light_rays)[0])
+        totals = (dr.sum(cam.rays), dr.sum(light_rays))
+        dr.eval(*totals)                                # one launch, read in one sync
+        camera_rays, light_ray_count = (int(n[0]) for n in totals)
+        self.rays += camera_rays + light_ray_count
         if timer.on:
-            self._pilot_pass(index, ctx, store, cam, light_seconds, camera_seconds, lanes)
+            self.timings[index] = (light_seconds, camera_seconds)
+        if self._is_pilot_pass(index):
+            self._pilot_pass(index, ctx, store, cam, camera_rays, light_ray_count, lanes)
         elif ctx.moments is not None:
             ctx.moments.count = cam.slot
             self.budget = self.pilot.redecide(
@@ -542,8 +558,8 @@ class Renderer:
         self.film.camera_samples += lanes
         self.path_tracer_spp += n_pixels * spp / self.pixels
 
-    def _pilot_pass(self, index, ctx, store, cam, light_seconds, camera_seconds, lanes):
-        """Record a pilot pass's costs; after the last one, choose the budget."""
+    def _pilot_pass(self, index, ctx, store, cam, camera_rays, light_rays, lanes):
+        """Record a pilot pass's counts; after the last one, choose the budget."""
         stored = 0 if store is None else store.vertices.size()
         share = 1.0
         if index == 0:
@@ -551,8 +567,7 @@ class Renderer:
             # every ray of a lane that went on from z_1 through a delta lobe.
             kept = dr.sum(dr.select(cam.specular_z1, cam.rays, dr.minimum(cam.rays, 1)))
             share = float(kept[0]) / max(float(dr.sum(cam.rays)[0]), 1.0)
-        self.pilot.record(index, light_seconds, camera_seconds, lanes, ctx.light_count, stored,
-                          share)
+        self.pilot.record(index, lanes, camera_rays, ctx.light_count, light_rays, stored, share)
         if ctx.moments is not None:
             ctx.moments.count = cam.slot
             # Where a third pass completes the round, the light image is normalized by
@@ -594,7 +609,7 @@ class Renderer:
         per_path = self._capacity
         while True:
             store = LightVertexStore(n, n * per_path[0], n * per_path[1],
-                                     zeroed=self._is_pilot_pass(index))
+                                     zeroed=self.timings is not None)
             light_rays = trace_light_subpaths(light, store)
             dr.eval(light_rays, store.vertices.items, store.splats.items, store.first,
                     *([] if ctx.moments is None else [ctx.moments.items, ctx.moments.count]))
@@ -642,7 +657,16 @@ class Renderer:
                                    "rays_per_sample": self.rays / max(
                                        1, (self.spp_done - self.path_tracer_spp) * self.pixels),
                                    "path_tracer_spp": self.path_tracer_spp,
-                                   "budget": str(self.budget), "decision": self.decision_text()})
+                                   "budget": str(self.budget), "decision": self.decision_text(),
+                                   **self.cost_stats()})
+
+    def cost_stats(self) -> dict:
+        """What the decision priced (optimizer.Costs): the pilot's counts and the unit
+        costs; nothing for a fixed budget."""
+        if self.pilot is None:
+            return {}
+        return {"cost_counts": self.pilot.costs.describe(),
+                "unit_costs": self.pilot.costs.units.describe()}
 
     def decision_text(self) -> str:
         """Why the render uses its budget (for logs and the EXR header)."""
@@ -657,6 +681,56 @@ class Renderer:
         rounds = "".join("; after %g spp %s" % (spp, b) for spp, b in self.pilot.rounds)
         return ((self.pilot.first or self.pilot.decision).describe() + rounds
                 + ("; its path-tracing passes run Mitsuba's path" if by_path else ""))
+
+
+# The calibration render: the Cornell box on a film of RES^2 pixels, so that each of
+# the pilot's passes takes half of it at 1 sample, as a pilot on a large film does
+# (the real passes' occupancy: on 2 cores the camera walk timed 1.8x dearer per
+# sample over 16384 lanes than over 32768; a GPU wants 2^18 and more).
+CALIBRATION_RES = {"llvm": 256, "cuda": 1024}
+
+
+def calibrate(repeats: int = 5) -> UnitCosts:
+    """Measure this machine's unit costs for the current variant (units.py) and store
+    them: the kernel seconds of the pilot's walks on the Cornell box per unit of work
+    they counted, and Mitsuba's path per ray, each the median of ``repeats`` warm runs
+    (the first run, which compiles, is left out)."""
+    variant = mi.variant()
+    print("bdpt: measuring the unit costs of %s on this machine (once; 'bdpt calibrate' "
+          "measures again)" % variant, file=sys.stderr, flush=True)
+    res = CALIBRATION_RES["cuda" if variant.startswith("cuda") else "llvm"]
+    box = mi.cornell_box()
+    box["sensor"]["film"].update(width=res, height=res)
+    scene = mi.load_dict(box)
+    rows = [_calibration_run(scene, seed) for seed in range(repeats + 1)][1:]
+    measured = UnitCosts(*(float(v) for v in np.median(np.array(rows), axis=0)))
+    units.save(measured)
+    return measured
+
+
+def _calibration_run(scene, seed: int) -> tuple:
+    """One run's unit costs, in UnitCosts' order."""
+    r = Renderer(scene, spp=16, seed=seed, max_depth=8, unit_costs=UnitCosts())
+    r.timings = {}
+    r.render_pass(0)
+    r.render_pass(1)
+    c = r.pilot.costs
+    (light0, camera0), (light1, camera1) = (
+        (light / (n * spp), camera / (n * spp))
+        for (light, camera), (_, n, spp) in zip((r.timings[0], r.timings[1]), r.plan))
+    camera_ray = camera0 / c.camera_rays
+    light_ray = light0 / c.light_rays           # one light subpath per camera sample
+    stored = max(light1 - light0, 0.0) / c.stored_per_path
+    connection = max(camera1 - camera0, 0.0) / max(c.connection_rays, 1e-9)
+    path = mi.load_dict({"type": "path", "max_depth": 8})
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history()
+        dr.eval(mi.render(scene, integrator=path, spp=4, seed=seed))
+        dr.sync_thread()
+        seconds = sum(e.get("execution_time", 0.0) for e in dr.kernel_history()
+                      if e["type"] == dr.KernelType.JIT) / 1000.0
+    path_ray = seconds / (r.pixels * 4) / c.camera_rays
+    return camera_ray, light_ray, stored, connection, path_ray
 
 
 def render(scene, spp: int | None = None, seed: int = 0, sensor=0,

@@ -7,7 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import bdpt_drjit  # noqa: F401  (selects llvm_ad_rgb, registers "bdpt")
+# Fixed unit costs (units.py) for every render of the tests and their subprocesses: an
+# "auto" budget's decision then depends on the scene and seed alone, not on this
+# machine's calibration.
+os.environ.setdefault("BDPT_CALIBRATION", str(Path(__file__).resolve().parent / "calibration.json"))
+
+import bdpt_drjit  # noqa: F401,E402  (selects llvm_ad_rgb, registers "bdpt")
 import mitsuba as mi
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -90,9 +95,9 @@ def specular_pixels(scene, jitter=16):
 
 @pytest.fixture(autouse=True)
 def fixed_budget(request, monkeypatch):
-    """Tests are deterministic: the default budget ("auto", budgets.py) is chosen from
-    measured kernel times, so renders here use full BDPT (light_paths 1, connections
-    "all"), the budget the settings fix, unless a test is marked ``auto_budget``."""
+    """Renders here use full BDPT (light_paths 1, connections "all"), so that every
+    strategy is tested, unless a test is marked ``auto_budget`` (the default budget,
+    chosen from the pilot's counts and the fixed unit costs above: deterministic too)."""
     if request.node.get_closest_marker("auto_budget") is None:
         from bdpt_drjit.budgets import BDPT, fixed_budget as fixed
         render_module = sys.modules["bdpt_drjit.render"]

@@ -1,6 +1,7 @@
 """The ``bdpt`` command line, driven as a user would: ``python -m bdpt_drjit ...`` in
 a subprocess, on tiny images.  Also the EXR reader/writer (bdpt_drjit.exr)."""
 import contextlib
+import json
 import os
 import re
 import shutil
@@ -537,6 +538,28 @@ def test_missing_llvm_is_refused(tmp_path):
 
 
 # -- info -------------------------------------------------------------------------------------
+def test_unit_costs_are_measured_once_and_by_calibrate(tmp_path):
+    """Without a calibration file the first "auto" render measures the machine's unit
+    costs (units.py) and says so; later renders read them; ``bdpt calibrate`` measures
+    again.  The EXR header records the counts and the units the decision priced."""
+    env = {"BDPT_CALIBRATION": "", "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    args = ["render", CORNELL, *TINY, "--spp", 16, "--max-depth", 3]
+    first = ok(run_cli(*args, "-o", tmp_path / "a.exr", env=env))
+    assert "measuring the unit costs" in first.stderr
+    files = list((tmp_path / "cache" / "bdpt-drjit").glob("bdpt-units-llvm_ad_rgb-*.json"))
+    assert len(files) == 1
+    stored = json.loads(files[0].read_text())["variants"]["llvm_ad_rgb"]
+    assert set(stored) == {"camera_ray", "light_ray", "stored_vertex", "connection", "path_ray"}
+    assert all(0 < v < 1e-3 for v in stored.values()), stored
+    second = ok(run_cli(*args, "-o", tmp_path / "b.exr", env=env))
+    assert "measuring" not in second.stderr
+    _, meta = read_exr(tmp_path / "b.exr")
+    assert "camera_rays=" in meta["cost_counts"]
+    assert "path_ray=%.3g" % stored["path_ray"] in meta["unit_costs"]
+    again = ok(run_cli("calibrate", "--repeats", 1, env=env))
+    assert str(files[0]) in again.stdout
+
+
 def test_info(scenes):
     p = ok(run_cli("info", CORNELL, "--res", "16x16"))
     out = p.stdout

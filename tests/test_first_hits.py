@@ -86,6 +86,6 @@ def test_first_hit_candidates_only_with_a_light_image():
     assert any(b.light_first_hits for b in candidates(False, True))
     assert not any(b.light_first_hits for b in candidates(False, False))
     # the camera walk's cost shrinks to the share of its rays that it still traces
-    costs = Costs(path_per_sample=1.0, light_per_path=1.0, first_hit_share=0.25)
+    costs = Costs(camera_rays=1.0, light_rays=1.0, first_hit_share=0.25)
     assert costs.of(Budget(2.0, 0, True)) == pytest.approx(0.25 + 2.0)
     assert costs.of(Budget(2.0, 0)) == pytest.approx(1.0 + 2.0)

@@ -1,8 +1,9 @@
 """Efficiency-aware budgets (optimizer.py): the decision, and the images it leads to.
 
-The decision rests on measured kernel times, so these tests check choices with wide
-margins (the decision the optimizer logs, never a timing), and images statistically
-(every budget is unbiased, so any choice must agree with the reference)."""
+The decision rests on the pilot's counts priced by unit costs (the tests' fixed ones,
+tests/calibration.json), so it is deterministic for a seed; still these tests check
+choices with wide margins (another machine's units may move close calls), and images
+statistically (every budget is unbiased, so any choice must agree with the reference)."""
 import sys
 import time
 
@@ -14,6 +15,7 @@ import mitsuba as mi
 import bdpt_drjit
 from bdpt_drjit import optimizer
 from bdpt_drjit.budgets import Budget
+from bdpt_drjit.units import UnitCosts
 from bdpt_drjit.optimizer import (DARK, Costs, MomentSample, MomentSamples, Pilot, PilotMeans,
                                   candidates, decide)
 from conftest import ROOT, external, mitsuba_render, scene_path
@@ -24,7 +26,7 @@ pytestmark = pytest.mark.auto_budget
 
 def test_decide_trades_cost_against_second_moments():
     cands = [Budget(0.0, 0), Budget(1.0, "all")]
-    costs = Costs(path_per_sample=1.0, light_per_path=1.0, connect_per_sample=2.0)
+    costs = Costs(camera_rays=1.0, light_rays=1.0, stored_per_path=0.0, connection_rays=2.0)
     # BDPT costs 4x path tracing: it wins only with less than a quarter of the moment.
     assert decide(cands, np.array([1.0, 0.3]), costs).budget == cands[0]
     assert decide(cands, np.array([1.0, 0.2]), costs).budget == cands[1]
@@ -286,18 +288,46 @@ def test_a_sample_is_not_its_own_mean(pixel):
     assert other == pytest.approx((4.0 * np.array(means.own)[index[0]] * 2) ** 2)
 
 
-def test_costs_come_from_the_walks_that_budgets_run():
-    """Light subpaths cost what the timing walk of the first pass took (no stored
-    vertices); the BDPT pass's extra light time is storing, charged to connections."""
-    pilot = Pilot(False)
-    pilot.record(0, light_seconds=2.0, camera_seconds=1.0, lanes=1, light_subpaths=0, stored=0,
+def test_costs_are_the_pilots_counts_priced_by_unit_costs():
+    """Per camera sample: the first pass's camera rays; per light subpath its light
+    rays; the BDPT pass's extra camera rays are its connections, and its stored
+    vertices the storing; each priced by its unit cost (units.UnitCosts), path
+    tracing by Mitsuba's path where that renders it."""
+    units = UnitCosts(camera_ray=1.0, light_ray=10.0, stored_vertex=100.0, connection=1000.0,
+                      path_ray=0.5)
+    pilot = Pilot(False, units=units)
+    pilot.record(0, lanes=2, camera_rays=4, light_subpaths=2, light_rays=6, stored=0,
                  first_hit_share=0.5)
-    pilot.record(1, light_seconds=5.0, camera_seconds=4.0, lanes=1, light_subpaths=1, stored=3)
+    pilot.record(1, lanes=1, camera_rays=5, light_subpaths=1, light_rays=3, stored=3)
     c = pilot.costs
-    assert (c.path_per_sample, c.light_per_path, c.store_per_path, c.connect_per_sample) == (1, 2, 3, 3)
-    assert c.of(Budget(1.0, 0)) == 3.0
-    assert c.of(Budget(1.0, "all")) == 3.0 + 3.0 + 3.0
-    assert c.of(Budget(1.0, 0, True)) == 0.5 + 2.0
+    assert (c.camera_rays, c.light_rays, c.connection_rays, c.stored_per_path) == (2, 3, 3, 3)
+    assert c.of(Budget(0.0, 0)) == 2.0
+    assert c.of(Budget(1.0, 0)) == 2.0 + 30.0
+    assert c.of(Budget(0.5, "all")) == 2.0 + 15.0 + 150.0 + 3000.0
+    assert c.of(Budget(1.0, 1)) == 2.0 + 30.0 + 300.0 + 1000.0     # 1 of 3 stored vertices
+    assert c.of(Budget(1.0, 0, True)) == 1.0 + 30.0
+    c.path_tracer = True
+    assert c.of(Budget(0.0, 0)) == 1.0
+
+
+def test_the_decision_reads_no_clock(box, monkeypatch):
+    """The same seed gives the same decision whatever the kernels' timings: the pilot's
+    counts are the same with the kernel history's times made random."""
+    real = dr.kernel_history
+    rng = np.random.default_rng(0)
+
+    def noisy(*args):
+        return [dict(e, execution_time=float(rng.uniform(0, 100))) for e in real(*args)]
+
+    runs = []
+    for patch in (False, True):
+        if patch:
+            monkeypatch.setattr(dr, "kernel_history", noisy)
+        r = sys.modules["bdpt_drjit.render"].Renderer(box, spp=32, seed=4, max_depth=5)
+        for _ in range(Pilot.PASSES):
+            r.run_pass()
+        runs.append((str(r.budget), r.cost_stats(), r.pilot.decision.describe()))
+    assert runs[0] == runs[1]
 
 
 def test_the_decision_compiles_nothing_and_reruns_no_walk(box):
@@ -414,7 +444,8 @@ def test_re_decisions_after_4_16_and_64_times_the_pilots_samples():
 
 
 def test_the_pilots_buffers_are_touched_outside_its_timed_kernels():
-    """The pilot times its walks by their JIT kernels; the moment buffer and its light
+    """The calibration (render.calibrate) times the pilot's walks by their JIT kernels;
+    the moment buffer and its light
     pools are filled by memsets first (vertices.LightVertexStore), so that the fresh
     pages' faults are not charged to connections and light subpaths (they made
     connections look 1.5-9x dearer in a process's first render)."""

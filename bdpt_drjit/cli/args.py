@@ -12,7 +12,7 @@ from ..settings import PARAMS, Param
 from .errors import CLIError, eprint
 
 PROG = "bdpt"
-COMMANDS = ("render", "merge", "info")
+COMMANDS = ("render", "merge", "info", "calibrate")
 # Old spellings that still work, with a warning: the names were overloaded.
 RENAMED_OPTIONS = {"--strategy-set": "--strategy-subset", "--strategies": "--strategy-images"}
 
@@ -199,6 +199,18 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("scene", nargs="?", metavar="SCENE.xml|IMAGE.exr",
                    help="scene XML file (default: the Cornell box) or an OpenEXR image")
     add_scene_options(i)
+
+    c = sub.add_parser("calibrate", help="measure this machine's unit costs for the budget "
+                       "decision",
+                       description="Measure what a ray of each walk, a stored light vertex, "
+                       "a connection and a ray of Mitsuba's path cost on this machine in the "
+                       "variant, and store them (bdpt_drjit/units.py says where). An 'auto' "
+                       "budget prices the pilot's counts with them; a render measures them "
+                       "itself on first use.")
+    c.add_argument("--variant", default=DEFAULT_VARIANT,
+                   help="Mitsuba variant (a JIT one: llvm_* or cuda_*; default %(default)s)")
+    c.add_argument("--repeats", type=int_at_least(1), default=5,
+                   help="warm runs whose median is kept (default %(default)s)")
     return parser
 
 
@@ -211,5 +223,5 @@ def parse_args(argv):
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help(sys.stderr)
-        raise CLIError("no command given (render, merge or info)", 2)
+        raise CLIError("no command given (render, merge, info or calibrate)", 2)
     return args

@@ -32,7 +32,8 @@ class Outputs:
         write must succeed."""
         res = renderer.result()
         self.meta.update(spp=res.spp, passes=res.passes, render_time=float(res.time),
-                         budget=res.stats["budget"], budget_decision=res.stats["decision"])
+                         budget=res.stats["budget"], budget_decision=res.stats["decision"],
+                         **{k: res.stats[k] for k in ("cost_counts", "unit_costs") if k in res.stats})
         failed = "; ".join(self.write(res, self.meta))
         if failed and final:
             raise CLIError("%s (the render of %d spp was not saved there)" % (failed, res.spp))
