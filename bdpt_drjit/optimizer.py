@@ -386,21 +386,17 @@ class Pilot:
     @staticmethod
     def stride(pixels: int, spp: int) -> int:
         """Each pilot pass takes one pixel in ``stride``: 2, the two passes cover the
-        film, or 4 where a quarter of it at 1 spp gives a pass twice its lanes; the
+        film, or 4 where a quarter of it at 1 spp still gives a pass PILOT_LANES; the
         odd pixels then get their samples of the round from the chosen budget
         (render.Renderer._plan_pilot).  Past that size the pilot's samples need not
-        grow with the film: beyond what the chosen budget spends on as many samples,
-        the round took 4.1-4.2% of a 64-spp render of the Cornell box at 512x512 with
-        half-film passes, 2.8-3.0% with quarters.  Not with only PILOT_LANES each: at
-        256x256 the BDPT pass's camera walk then timed 1.8x dearer per sample than
-        over 32768 lanes on 2 cores (on one core alike; the CPU backend splits up to
-        2 x 16384 lanes per core into one block per core), and the ceiling-lit box
-        chose light tracing instead of connections.  The means its moments divide by
-        (PilotMeans) rest on half the samples, which makes every candidate's moment a
-        few percent larger (1 / mean^2 of a noisier mean), about alike for all.  On
-        a GPU (2^18 lanes) quarters start at 2.1M pixels, where under the default
-        memory budget a film already renders in pixel ranges, without a pilot."""
-        return 4 if spp == 1 and pixels // 4 >= 2 * _pilot_lanes() else 2
+        grow with the film: its decision prices counts, not timings, so its passes
+        need no occupancy, only enough samples for the moments.  (Glass pane, 256x256,
+        64 spp, where path tracing is chosen: the pilot round took 190 ms of 1.07 s,
+        against path's 0.89 s for the whole render, with halves.)  The means its
+        moments divide by (PilotMeans) rest on fewer samples, which makes every
+        candidate's moment a few percent larger (1 / mean^2 of a noisier mean),
+        about alike for all."""
+        return 4 if spp == 1 and pixels // 4 >= _pilot_lanes() else 2
 
     def __init__(self, spectral: bool, light_image: bool = True,
                  units: UnitCosts | None = None):
