@@ -53,3 +53,16 @@ def test_smoke_outputs(smoke):
         assert p is None or p["max_abs_sum_error"] < 1e-3 * max(1.0, p["image_mean"])
     md = (out / "RESULTS.md").read_text()
     assert "SMOKE" in md and "python -m benchmarks.run --smoke" in md
+
+
+def test_profile_pass_reports_kernels_against_path():
+    """``python -m benchmarks.profile_pass``: one warm pass's launches, kernels and peak
+    memory per lane, beside Mitsuba's path on the same samples."""
+    proc = subprocess.run([sys.executable, "-m", "benchmarks.profile_pass", "--res", "16",
+                           "--spp", "2", "--max-depth", "3"], cwd=str(ROOT), capture_output=True,
+                          text=True, timeout=300, env=cli_env())
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    lines = proc.stdout.splitlines()
+    assert lines[1].startswith("bdpt pass: 512 lanes") and "JIT" in lines[1]
+    assert any(line.startswith("Mitsuba's path: 512 lanes") for line in lines)
+    assert lines[-1].startswith("bdpt / path:")
