@@ -60,6 +60,7 @@ class Config:
     short_time: float = 0.1         # this (seconds)
     methods: list = field(default_factory=lambda: list(ALL_METHODS))
     ref_mitsuba_factor: int = 4
+    weighting: bool = False         # report the MIS weighting schemes only (run.py --weighting)
 
 
 MODES = {
@@ -262,10 +263,28 @@ def equal_comparison(result, key="time", baseline="path", budget_method="bdpt-po
 
 
 def compare(r: dict) -> None:
-    """A scene result's equal-time and equal-ray comparisons."""
+    """A scene result's equal-time and equal-ray comparisons, and the weighting
+    schemes' against the power heuristic."""
     base = r.get("baseline", "path")
     r["equal_time"] = equal_comparison(r, "time", baseline=base)
     r["equal_rays"] = equal_comparison(r, "rays", baseline=base)
+    r["weighting"] = weighting_comparison(r)
+
+
+def weighting_schemes(r: dict) -> list:
+    """The MIS weighting schemes (C.WEIGHTING) among a scene result's methods."""
+    present = {x["method"] for x in r["records"]}
+    return [m for m in C.WEIGHTING if m in present]
+
+
+def weighting_comparison(r: dict) -> dict | None:
+    """Each weighting scheme's error at the power heuristic's time and at its spp (x =
+    power's last level), as ratios to power's; None without power and another scheme."""
+    schemes = weighting_schemes(r)
+    if "bdpt-power" not in schemes or len(schemes) < 2:
+        return None
+    mine = dict(r, records=[x for x in r["records"] if x["method"] in schemes])
+    return {key: equal_comparison(mine, key, baseline="bdpt-power") for key in ("time", "spp")}
 
 
 # -- throughput & scaling ------------------------------------------------------------------------------
@@ -390,10 +409,6 @@ def new_results(mode: str, cmd: str, cfg: Config, methods) -> dict:
         ok, why = C.method_supported(C.METHODS[name])
         if not ok:
             res["notes"].append("method %s skipped: %s" % (name, why))
-    if "bdpt-pt" not in res["methods"]:
-        res["notes"].append("the engine has no PT-only / LT-only strategy switch (`strategies=`); "
-                            "'bdpt-no-lt' (light_image=False) still uses connections and NEE, and "
-                            "Mitsuba's path / ptracer stand in for pure path / light tracing")
     return res
 
 
@@ -407,8 +422,8 @@ def error_section(res: dict, cfg: Config, methods, out: Path, progress) -> None:
             res["skipped_scenes"].append((name, spec.available()[1]))
             continue
         compare(r)
-        r["chart"] = "%s_error_time.png" % name
-        r["weighting_chart"] = "%s_weighting.png" % name
+        r["chart"] = None if cfg.weighting else "%s_error_time.png" % name
+        r["weighting_chart"] = "%s_weighting.png" % name if r["weighting"] else None
         charts.scene_charts(r, out / "charts", methods)
         res["scenes"].append(r)
         C.write_json(out / "results.json", res)
