@@ -5,7 +5,7 @@ equal-ray comparison, throughput and scaling, and strategy pyramids.
     python -m benchmarks.run --quick    # a few minutes on 2 cores: 32x32, 3 spp levels
     python -m benchmarks.run            # the full run (long: run it on an idle machine)
     python -m benchmarks.run --weighting --res 128 --levels 4,16,64 --ref-spp 2048 --seeds 2
-                                        # the MIS weighting schemes (~15 min on 2 cores)
+                                        # the MIS weighting schemes (3-9 min on 2 cores)
 
 Options: --out DIR (default benchmarks/results), --scenes a,b, --methods a,b, --res N,
 --levels 1,2,4, --ref-spp N, --seeds N, --skip error,throughput,scaling,rss,cold,pyramid,

@@ -100,7 +100,8 @@ def test_a_report_replaces_its_block_of_results_md(tmp_path):
 
 
 def test_the_published_blocks_exist_in_results_md():
-    """The blocks that benchmarks.run (suite, weighting) and cluster_scaling publish into."""
+    """The blocks that benchmarks.run (--section: suite, weighting, media, scaling) and
+    cluster_scaling publish into, each once."""
     from benchmarks import common as C
-    for name in ("suite", "weighting", "media", "cluster_scaling"):
+    for name in ("suite", "weighting", "media", "scaling", "cluster_scaling"):
         C.check_block(C.BENCH / "RESULTS.md", name)
