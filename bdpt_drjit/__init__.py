@@ -9,14 +9,13 @@ scene system.
 
 Layout: mis.py (all MIS weights), walk.py (subpath walks), connect.py (the
 strategies), film.py (camera block and light-image splats), render.py (passes),
-emitters.py / camera.py (the emitter and sensor models), integrators/bdpt.py
-(the Mitsuba plugin).
+api.py (``render``: here or on a cluster), emitters.py / camera.py (the emitter and
+sensor models), integrators/bdpt.py (the Mitsuba plugin).
 """
 import os
 
 from ._signals import held_during_import
-
-__version__ = "0.1.0"
+from ._version import __version__
 
 # The variant chosen when none is set: BDPT_VARIANT=cuda_ad_rgb runs the tests, the
 # benchmarks and the CLI's default on a GPU.
@@ -52,7 +51,8 @@ with held_during_import():
 
     from .support import UnsupportedPluginError
     from .exr import read_exr, write_exr
-    from .render import Renderer, RenderResult, render
+    from .render import Renderer, RenderResult
+    from .api import render            # after .render: bdpt_drjit.render is the function
     from .settings import HEURISTICS, PARAMS, Settings
 
     register()

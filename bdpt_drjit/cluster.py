@@ -135,7 +135,7 @@ def _versions() -> dict:
     import drjit
     import mitsuba
 
-    from . import __version__
+    from ._version import __version__
     return {"bdpt_drjit": __version__, "mitsuba": mitsuba.__version__,
             "drjit": drjit.__version__, "python": "%d.%d" % sys.version_info[:2]}
 
@@ -172,7 +172,7 @@ class Job:
 def _load(job: Job):
     import mitsuba as mi
 
-    from . import Renderer
+    from .render import Renderer
     if mi.variant() != job.variant:
         mi.set_variant(job.variant)
     if job.threads:
@@ -206,12 +206,11 @@ class _Worker:
         self.load_time = time.perf_counter() - start
 
     def info(self) -> dict:
-        import bdpt_drjit
         r = self.renderer
         return {"host": self.host, "pid": self.pid, "error": self.error,
                 "load_time": self.load_time, "plan": None if r is None else list(r.plan),
                 "code": code_fingerprint(), "versions": _versions(),
-                "package": str(Path(bdpt_drjit.__file__).parent)}
+                "package": str(Path(__file__).parent)}
 
     def render(self, index: int, budget=None) -> dict:
         """Pass ``index`` with the driver's ``budget`` (None: the renderer's own)."""

@@ -36,13 +36,8 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from .support import UnsupportedPluginError, plugin_name  # noqa: F401 (re-exported)
-
-AREA, POINT, SPOT, ENV, DIRECTIONAL, PROJECTOR = 0, 1, 2, 3, 4, 5
-_KINDS = {"AreaLight": AREA, "PointLight": POINT, "SpotLight": SPOT,
-          "ConstantBackgroundEmitter": ENV, "EnvironmentMapEmitter": ENV,
-          "DirectionalEmitter": DIRECTIONAL, "Projector": PROJECTOR,
-          "SunskyEmitter": ENV}
+from .emitter_kinds import AREA, DIRECTIONAL, ENV, KINDS, POINT, PROJECTOR, SPOT
+from .support import UnsupportedPluginError, plugin_name
 
 
 def is_delta_position(kind):
@@ -143,7 +138,7 @@ class Emitters:
         # both are called directly, masked by emitter index (see sample_position).
         self.textured_area_shapes, self.projectors = [], []
         for index, e in enumerate(emitters):
-            kind = _KINDS.get(e.class_name())
+            kind = KINDS.get(e.class_name())
             if kind is None:       # support.check refuses these first, with the reason
                 raise UnsupportedPluginError("bdpt: emitter plugin '%s' is not supported"
                                              % plugin_name(e))

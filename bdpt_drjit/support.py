@@ -20,6 +20,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .emitter_kinds import AREA, KINDS, PROJECTOR
+
 SUPPORTED, WARNING, REFUSED = "supported", "warning", "REFUSED"
 
 # XML plugin names of Mitsuba 3.9.1's classes (class_name() -> the name in a scene file).
@@ -185,8 +187,7 @@ def _emitter_verdicts(scene) -> list:
 
 
 def _emitter_verdict(e) -> Verdict:
-    from .emitters import _KINDS, AREA, PROJECTOR
-    name, kind = describe(e), _KINDS.get(e.class_name())
+    name, kind = describe(e), KINDS.get(e.class_name())
     if kind is None:
         return _refused("emitter", e, name, _EMITTERS.get(
             plugin_name(e), "bdpt has no model of its emission densities; use Mitsuba's path"))

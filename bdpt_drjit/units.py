@@ -25,6 +25,8 @@ from pathlib import Path
 import drjit as dr
 import mitsuba as mi
 
+from ._version import __version__
+
 FORMAT = 1         # the file's layout; a file of another one is measured again
 
 
@@ -52,7 +54,6 @@ def machine() -> str:
             break
     else:
         device = "cpu:%s:%d" % (_cpu_model(), os.cpu_count() or 1)
-    from . import __version__
     return "%s %s %s %s" % (device, __version__, mi.__version__, dr.__version__)
 
 

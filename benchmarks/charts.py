@@ -10,8 +10,6 @@ import numpy as np
 
 from . import common as C
 
-WEIGHTING = ["bdpt-power", "bdpt-balance", "bdpt-uniform", "bdpt-lafortune"]
-
 
 def fig(w=6, h=4):
     return C.matplotlib().subplots(figsize=(w, h), dpi=100)
@@ -51,17 +49,20 @@ def curves(result, key="time"):
 
 # -- per scene -------------------------------------------------------------------------------------
 def scene_charts(result, charts: Path, methods) -> None:
-    """A scene's two charts, named by result["chart"] and result["weighting_chart"]."""
-    error(result, charts / result["chart"], methods)
-    weighting(result, charts / result["weighting_chart"], methods)
+    """A scene's charts, named by result["chart"] and result["weighting_chart"] (None:
+    not drawn)."""
+    if result.get("chart"):
+        error(result, charts / result["chart"], methods)
+    if result.get("weighting_chart"):
+        weighting(result, charts / result["weighting_chart"], methods)
 
 
 def error(result, path: Path, methods):
     f, ax = fig()
     cv = curves(result, "time")
     for m in methods:
-        if m.name not in cv or m.name == "bdpt-lafortune":     # in the weighting chart only
-            continue
+        if m.name not in cv or (m.name == "bdpt-lafortune" and result.get("weighting_chart")):
+            continue                                # in the weighting chart only
         xs, es = cv[m.name]
         ax.loglog(xs, es, m.style, color=m.color, marker="o", ms=3, label=m.label)
     eq = result.get("equal_time")
@@ -73,16 +74,30 @@ def error(result, path: Path, methods):
 
 
 def weighting(result, path: Path, methods):
-    f, ax = fig()
-    cv = curves(result, "spp")
-    for m in methods:
-        if m.name in WEIGHTING and m.name in cv:
-            xs, es = cv[m.name]
-            ax.loglog(xs, es, m.style, color=m.color, marker="o", ms=3, label=m.label)
-    if cv.get("bdpt-power"):
-        xs, es = cv["bdpt-power"]
-        ax.loglog(xs, [es[0] * xs[0] / x for x in xs], color="0.6", lw=0.8, ls=":", label="1/spp")
-    finish_loglog(f, ax, path, "samples per pixel", "relative MSE", "MIS weighting: %s" % result["scene"])
+    """The MIS weighting schemes' error against time (left) and against spp (right)."""
+    f, axes = C.matplotlib().subplots(1, 2, figsize=(9, 3.6), dpi=100, sharey=True)
+    for ax, key, xlabel in ((axes[0], "time", "render time / s (compile excluded)"),
+                            (axes[1], "spp", "samples per pixel")):
+        cv = curves(result, key)
+        for m in methods:
+            if m.name in C.WEIGHTING and m.name in cv:
+                xs, es = cv[m.name]
+                ax.loglog(xs, es, m.style, color=m.color, marker="o", ms=3, label=m.label)
+        eq = (result.get("weighting") or {}).get(key)
+        if eq:
+            ax.axvline(eq["x"], color="0.7", lw=0.8, ls=":")
+        if key == "spp" and cv.get("bdpt-power"):
+            xs, es = cv["bdpt-power"]
+            ax.loglog(xs, [es[0] * xs[0] / x for x in xs], color="0.6", lw=0.8, ls=":", label="1/spp")
+        no_minor_labels(ax)
+        ax.set_xlabel(xlabel)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].set_ylabel("relative MSE")
+    axes[1].legend(fontsize=7)
+    f.suptitle("MIS weighting: %s (%dx%d, max_depth %d)" % (result["scene"], result["width"],
+                                                           result["height"], result["max_depth"]),
+               fontsize=10)
+    save(f, path)
 
 
 # -- scaling ---------------------------------------------------------------------------------------

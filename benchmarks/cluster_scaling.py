@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import sys
 import time
 
@@ -38,7 +37,6 @@ from bdpt_drjit.cluster import Cluster, ClusterRun  # noqa: E402
 
 dr.set_flag(dr.JitFlag.KernelHistory, False)       # common turns it on; not needed here
 SCENE = C.ROOT / "scenes" / "cornell-box.xml"
-BEGIN, END = "<!-- cluster_scaling: begin -->", "<!-- cluster_scaling: end -->"
 
 
 class Plain:
@@ -125,16 +123,6 @@ def table(rows, spp) -> str:
     return "\n".join(out)
 
 
-def publish(block: str) -> None:
-    path = C.BENCH / "RESULTS.md"
-    text = path.read_text()
-    if BEGIN not in text:
-        raise SystemExit("RESULTS.md has no %s ... %s block (in its 'Cluster (Ray)' section)"
-                         % (BEGIN, END))
-    text = re.sub(re.escape(BEGIN) + ".*?" + re.escape(END), lambda _: block, text, flags=re.S)
-    path.write_text(text)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--res", default="128", help="film size, N or WxH (default 128)")
@@ -148,6 +136,8 @@ def main(argv=None) -> int:
     ap.add_argument("--publish", action="store_true",
                     help="replace the measured block of RESULTS.md's 'Cluster (Ray)' section")
     args = ap.parse_args(argv)
+    if args.publish:
+        C.check_block(C.BENCH / "RESULTS.md", "cluster_scaling")
     w, h = C.parse_res(args.res)
     params = {"resx": w, "resy": h}
     machine = C.machine_info()
@@ -165,7 +155,6 @@ def main(argv=None) -> int:
     command = "python -m benchmarks.cluster_scaling " + " ".join(argv if argv is not None
                                                                    else sys.argv[1:])
     block = "\n".join([
-        BEGIN,
         "Reproduce: `%s` (took %.0f s). Cornell box %dx%d, max_depth %d, %d spp in %d passes of "
         "%d spp, seed %d, fastest of %d renders per cluster (and of all plain renders, one after each). Machine: %s, %d cores, load average %.2f at start; Ray %s; %s. "
         "The three images agree to rtol 1e-5 (the same estimator)."
@@ -173,14 +162,13 @@ def main(argv=None) -> int:
            rows[0]["passes"], args.per_pass, args.seed, args.repeats, machine["cpu"], machine["cpu_count"],
            machine["load_avg_1min"], __import__("ray").__version__, machine["date"]),
         "",
-        table(rows, args.spp),
-        END])
+        table(rows, args.spp)])
     print(block)
     C.write_json(C.RESULTS / "cluster_scaling.json",
                  {"machine": machine, "command": command,
                   "rows": [{k: v for k, v in m.items() if k != "image"} for m in rows]})
     if args.publish:
-        publish(block)
+        C.replace_block(C.BENCH / "RESULTS.md", "cluster_scaling", block)
     return 0
 
 

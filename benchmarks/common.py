@@ -79,6 +79,9 @@ VOLPATHMIS = Method("volpathmis", "Mitsuba volpathmis", "mitsuba", (("type", "vo
 
 METHODS = {m.name: m for m in (BDPT_AUTO, BDPT_POWER, BDPT_BALANCE, BDPT_UNIFORM, BDPT_LAFORTUNE, BDPT_NO_LT,
                                 BDPT_PT, BDPT_LT, BDPT_FIRST_LT, PATH, PTRACER, VOLPATH, VOLPATHMIS)}
+# The MIS weighting schemes, compared on Veach's budget (light_paths=1 connections=all,
+# which mis="lafortune" fixes itself; it has no light image): `benchmarks.run --weighting`.
+WEIGHTING = ["bdpt-power", "bdpt-balance", "bdpt-uniform", "bdpt-lafortune"]
 
 
 def bdpt_settings_fields() -> set:
@@ -507,6 +510,27 @@ class JSONEncoder(json.JSONEncoder):
         if dataclasses.is_dataclass(o):
             return dataclasses.asdict(o)
         return super().default(o)
+
+
+def check_block(path: Path, name: str) -> tuple[str, str]:
+    """The markers of the block ``name`` of the Markdown file ``path``, which must hold
+    it once (a run that publishes checks this before it starts)."""
+    begin, end = "<!-- %s: begin -->" % name, "<!-- %s: end -->" % name
+    text = path.read_text()
+    if text.count(begin) != 1 or text.count(end) != 1 or text.index(begin) > text.index(end):
+        raise SystemExit("%s has no single %s ... %s block: add one where the section belongs"
+                         % (path, begin, end))
+    return begin, end
+
+
+def replace_block(path: Path, name: str, text: str) -> None:
+    """Put ``text`` between the lines ``<!-- name: begin -->`` and ``<!-- name: end -->``
+    of the Markdown file ``path`` (RESULTS.md: each of its measured sections is such a
+    block, written by the command that measures it); a file without them is refused."""
+    begin, end = check_block(path, name)
+    block = "%s\n%s\n%s" % (begin, text.strip("\n"), end)
+    path.write_text(re.sub(re.escape(begin) + ".*?" + re.escape(end), lambda _: block,
+                           path.read_text(), flags=re.S))
 
 
 def write_json(path: Path, data) -> None:

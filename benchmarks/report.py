@@ -62,8 +62,10 @@ def results_md(res: dict, cfg, chart_rel: str) -> str:
     rep = Report(chart_rel)
     header(rep, res, cfg)
     scenes = [s for s in res.get("scenes", []) if s]
-    if scenes:
+    if scenes and not cfg.weighting:
         scene_sections(rep, res, scenes)
+    if any(s.get("weighting") for s in scenes):
+        weighting_section(rep, [s for s in scenes if s.get("weighting")])
     tp = res.get("throughput")
     if tp:
         rep.add("throughput", report=TP.report(tp, tp.get("cold")))
@@ -79,6 +81,19 @@ def results_md(res: dict, cfg, chart_rel: str) -> str:
     if res.get("observations"):
         rep.add("observations", observations="\n".join("- %s" % o for o in res["observations"]))
     return rep.text()
+
+
+def as_block(md: str) -> str:
+    """A report as a block of benchmarks/RESULTS.md: without its title, every heading
+    one level down (the page's own heading and reading stand above the block)."""
+    lines = md.split("\n")
+    if lines and lines[0].startswith("# "):
+        lines = lines[1:]
+    out, code = [], False
+    for line in lines:
+        code ^= line.startswith("```")
+        out.append("#" + line if not code and re.match(r"#+ ", line) else line)
+    return "\n".join(out).strip("\n")
 
 
 def header(rep: Report, res: dict, cfg) -> None:
@@ -117,6 +132,35 @@ def scene_sections(rep: Report, res: dict, scenes: list) -> None:
     rep.add("charts")
     for s in scenes:
         rep.add("scene_charts", table=last_level_table(s), **s)
+
+
+def weighting_section(rep: Report, scenes: list) -> None:
+    """The MIS weighting schemes against the power heuristic: error at its time and at
+    its spp (with each scheme's time for those spp), and each scene's chart."""
+    others = [m for m in C.WEIGHTING[1:] if any(m in s["weighting"]["time"]["methods"] for s in scenes)]
+    at_time, at_spp = [], []
+    for s in scenes:
+        eq = s["weighting"]["time"]
+        at_time.append([s["scene"], "%.3g" % eq["x"], "%.3g" % eq["methods"]["bdpt-power"]["err_at_x"]]
+                       + ratio_cells(eq, others, "err_ratio", "err_extrapolated"))
+        eq = s["weighting"]["spp"]
+        power_time = time_at_spp(s, "bdpt-power", eq["x"])
+        cells = []
+        for mm, cell in zip(others, ratio_cells(eq, others, "err_ratio", "err_extrapolated")):
+            t = time_at_spp(s, mm, eq["x"])
+            cells.append(cell if t is None or not power_time else "%s (%.2fx)" % (cell, t / power_time))
+        at_spp.append([s["scene"], "%d" % eq["x"], "%.3g" % eq["methods"]["bdpt-power"]["err_at_x"]] + cells)
+    charts = "\n\n".join("![%s weighting](%s/%s)" % (s["scene"], rep.chart_rel, s["weighting_chart"])
+                          for s in scenes if s.get("weighting_chart"))
+    rep.add("weighting", max_extrapolation=C.MAX_EXTRAPOLATION, charts=charts,
+            time_table=table(["scene", "time x / s", "power: relMSE"] + others, at_time),
+            spp_table=table(["scene", "spp", "power: relMSE"] + others, at_spp))
+
+
+def time_at_spp(s: dict, method: str, spp) -> float | None:
+    """A method's (median) render time at a level of ``spp`` samples, if it rendered one."""
+    times = [r["time"] for r in s["records"] if r["method"] == method and r["spp"] == spp]
+    return times[0] if times else None
 
 
 def suite_table(scenes: list, skipped: list) -> str:
@@ -213,6 +257,12 @@ def observations(res: dict) -> list:
         bad = [r for r in recs if r["nonfinite"]]
         if bad:
             obs.append("%s: non-finite pixels from %s" % (s["scene"], sorted({r["method"] for r in bad})))
+        for mm in sorted({r["method"] for r in recs}):
+            last = recs_of(s, mm)[-1]
+            if s.get("ref_mean") and abs(last["mean"] / s["ref_mean"] - 1) > 0.2:
+                obs.append("%s: %s's image has %.2fx the reference's mean at %d spp (an effect "
+                           "it cannot render?)"
+                           % (s["scene"], mm, last["mean"] / s["ref_mean"], last["spp"]))
         bal = [r for r in recs if r["method"] == "bdpt-balance"]
         pw = [r for r in recs if r["method"] == "bdpt-power"]
         if bal and pw and bal[-1]["relmse"] < 0.8 * pw[-1]["relmse"]:

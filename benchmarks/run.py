@@ -4,13 +4,19 @@ equal-ray comparison, throughput and scaling, and strategy pyramids.
     python -m benchmarks.run --smoke    # CI smoke test: 2 scenes, 16x16, seconds
     python -m benchmarks.run --quick    # a few minutes on 2 cores: 32x32, 3 spp levels
     python -m benchmarks.run            # the full run (long: run it on an idle machine)
+    python -m benchmarks.run --weighting --res 128 --levels 4,16,64 --ref-spp 2048 --seeds 2
+                                        # the MIS weighting schemes (3-9 min on 2 cores)
 
 Options: --out DIR (default benchmarks/results), --scenes a,b, --methods a,b, --res N,
---levels 1,2,4, --ref-spp N, --seeds N, --skip error,throughput,scaling,rss,cold,pyramid.
+--levels 1,2,4, --ref-spp N, --seeds N, --skip error,throughput,scaling,rss,cold,pyramid,
+--weighting (the four MIS heuristics on Veach's budget, error against time only),
+--section NAME (the block of RESULTS.md to rewrite).
 
 Outputs (under --out): refs/ (cached references, .npy + .json), charts/*.png,
 results.json, RESULTS.md.  Without --out (and not --smoke) the charts are also copied
-to benchmarks/charts/ and the summary to benchmarks/RESULTS.md, to be committed.
+to benchmarks/charts/ and the report into its block of benchmarks/RESULTS.md (the
+lines between ``<!-- NAME: begin -->`` and ``<!-- NAME: end -->``, NAME = --section:
+"suite" by default, "weighting" with --weighting), to be committed.
 
 This file is the command line; what is rendered and measured is in suite.py (its
 docstring says how), the tables and text of RESULTS.md in report.py (prose in
@@ -43,8 +49,14 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--ref-spp", type=int, help="reference spp (BDPT; Mitsuba uses 4x)")
     ap.add_argument("--seeds", type=int, help="renders per level (errors averaged)")
     ap.add_argument("--skip", default="", help="comma-separated sections to skip: " + ",".join(suite.SECTIONS))
+    ap.add_argument("--weighting", action="store_true",
+                    help="the MIS weighting schemes (%s; Veach's budget, light_paths=1 "
+                         "connections=all) on the suite's scenes: error against time, "
+                         "nothing else" % ", ".join(C.WEIGHTING))
+    ap.add_argument("--section", help="the block of benchmarks/RESULTS.md that the report "
+                                      "replaces (default: suite; weighting with --weighting)")
     ap.add_argument("--no-publish", action="store_true",
-                    help="do not copy charts to benchmarks/charts and RESULTS.md to benchmarks/")
+                    help="do not copy charts to benchmarks/charts nor the report into benchmarks/RESULTS.md")
     ap.add_argument("--report-only", action="store_true",
                     help="redo the tables, charts and RESULTS.md from OUT/results.json without rendering")
     return ap
@@ -76,7 +88,21 @@ def config(ap: argparse.ArgumentParser, args, mode: str) -> suite.Config:
         cfg.ref_spp = args.ref_spp
     if args.seeds:
         cfg.seeds = args.seeds
+    if args.weighting:
+        cfg.weighting = True
+        if not args.methods:
+            cfg.methods = list(C.WEIGHTING)
     return cfg
+
+
+def sections_skipped(ap: argparse.ArgumentParser, args) -> set:
+    """The sections not run: --skip's, and with --weighting all but the error runs."""
+    skip = set(names(args.skip))
+    if skip - set(suite.SECTIONS):
+        ap.error("unknown sections to skip: %s" % sorted(skip - set(suite.SECTIONS)))
+    if args.weighting:
+        skip |= set(suite.SECTIONS) - {"error"}
+    return skip
 
 
 def main(argv=None) -> int:
@@ -84,11 +110,12 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     mode = "smoke" if args.smoke else "quick" if args.quick else "full"
     cfg = config(ap, args, mode)
-    skip = set(names(args.skip))
-    if skip - set(suite.SECTIONS):
-        ap.error("unknown sections to skip: %s" % sorted(skip - set(suite.SECTIONS)))
+    skip = sections_skipped(ap, args)
     out = args.out or C.RESULTS
-    publish = args.out is None and not args.smoke and not args.no_publish
+    publish = None
+    if args.out is None and not args.smoke and not args.no_publish:
+        publish = args.section or ("weighting" if args.weighting else "suite")
+        C.check_block(C.BENCH / "RESULTS.md", publish)      # before hours of rendering
     (out / "charts").mkdir(parents=True, exist_ok=True)
     progress = suite.Progress()
     C.matplotlib()          # fails here, before any rendering, where matplotlib is missing
@@ -104,7 +131,7 @@ def main(argv=None) -> int:
     return 0
 
 
-def report_only(out: Path, publish: bool, progress) -> int:
+def report_only(out: Path, publish: str | None, progress) -> int:
     res = json.loads((out / "results.json").read_text())
     cfg = suite.Config(**res["config"])
     methods = [C.METHODS[m] for m in res["methods"]]
@@ -119,16 +146,18 @@ def report_only(out: Path, publish: bool, progress) -> int:
     return 0
 
 
-def finish(res, cfg, out: Path, publish: bool, progress) -> None:
-    """RESULTS.md under out; with publish, also the charts and RESULTS.md to be committed."""
+def finish(res, cfg, out: Path, publish: str | None, progress) -> None:
+    """RESULTS.md under out; with publish (a block's name), also the charts and the
+    report in that block of benchmarks/RESULTS.md, to be committed."""
     md = report.results_md(res, cfg, "charts")
     (out / "RESULTS.md").write_text(md)
     if publish:
+        C.replace_block(C.BENCH / "RESULTS.md", publish, report.as_block(md))
         C.CHARTS.mkdir(parents=True, exist_ok=True)
         for png in (out / "charts").glob("*.png"):
             charts.small_png(png, C.CHARTS / png.name)
-        (C.BENCH / "RESULTS.md").write_text(md)
-        progress("published charts to %s and %s" % (C.CHARTS, C.BENCH / "RESULTS.md"))
+        progress("published charts to %s and the report to the block '%s' of %s"
+                 % (C.CHARTS, publish, C.BENCH / "RESULTS.md"))
     for o in res["observations"]:
         progress("observation: " + o)
     progress("done in %.0f s; results in %s" % (res["elapsed"], out))

@@ -6,9 +6,10 @@ Method: every render is timed with time.perf_counter() around the render and the
 evaluation of its image (Dr.Jit is lazy); the LLVM compile time of any kernel
 compiled inside the timed region (Dr.Jit's kernel history) is subtracted, and each
 method is warmed up once per scene before its timed renders.  BDPT variants render a
-fixed list of spp levels; the Mitsuba integrators double their spp until they have
-used as much time as BDPT (power) at its last level, so all curves cover the same
-time range.  Error: relative MSE, mean over pixels and channels of
+fixed list of spp levels, their renders interleaved (at each level one render of each
+in turn, so that other load on a shared machine falls on all of them alike); the
+Mitsuba integrators then double their spp until they have used as much time as BDPT
+(power) at its last level, so all curves cover the same time range.  Error: relative MSE, mean over pixels and channels of
 (img - ref)^2 / (ref^2 + 1e-2), and the mean absolute relative error.
 """
 from __future__ import annotations
@@ -60,6 +61,7 @@ class Config:
     short_time: float = 0.1         # this (seconds)
     methods: list = field(default_factory=lambda: list(ALL_METHODS))
     ref_mitsuba_factor: int = 4
+    weighting: bool = False         # report the MIS weighting schemes only (run.py --weighting)
 
 
 MODES = {
@@ -143,64 +145,107 @@ def error_for_scene(spec, cfg: Config, methods, refs_dir: Path, progress) -> dic
     ref, ref_meta = get_reference(spec, scene, w, h, factor, cfg, refs_dir, progress)
     if ref.shape[:2] != (h, w):
         raise RuntimeError("%s: reference is %s, render is %dx%d" % (spec.name, ref.shape, w, h))
-    records = []
-    target_time = None
-    order = sorted(methods, key=lambda m: (m.name != "bdpt-power", m.engine != "bdpt"))
-    for m in order:
-        mine = method_records(spec, scene, ref, m, cfg, target_time, progress)
-        records += mine
-        if m.name == "bdpt-power" or target_time is None:
-            target_time = max(target_time or 0.0, max(r["time"] for r in mine))
+    fixed = [m for m in methods if m.engine == "bdpt"]
+    records = interleaved_records(spec, scene, ref, fixed, cfg, progress) if fixed else []
+    # The Mitsuba integrators run until they have used BDPT (power)'s time at its last
+    # level (or the first method's, without it).
+    lead = "bdpt-power" if any(m.name == "bdpt-power" for m in fixed) else fixed[0].name if fixed else None
+    target_time = max((r["time"] for r in records if r["method"] == lead), default=None)
+    for m in methods:
+        if m.engine != "bdpt":
+            mine = method_records(spec, scene, ref, m, cfg, target_time, progress)
+            records += mine
+            target_time = target_time or max(r["time"] for r in mine)
     estimate_mitsuba_rays(scene, spec, methods, records)
     return {"scene": spec.name, "width": w, "height": h, "max_depth": spec.max_depth,
             "baseline": spec.baseline, "reference": ref_meta, "records": records, "expected_failure": spec.expected_failure,
             "ref_mean": float(ref.mean())}
 
 
+def interleaved_records(spec, scene, ref, methods, cfg: Config, progress) -> list:
+    """The records of methods that render the fixed spp levels (BDPT), their renders
+    interleaved: at each level the methods take turns, one render each, each round
+    starting with the next method, so that other load on the machine falls on all of
+    them alike.  An untimed render starts each level: the first render of a new pass
+    size (fresh memory) took up to twice as long as the next in the weighting runs of
+    2026-11-26, and was charged to whichever method rendered first."""
+    for m in methods:
+        C.render(m, scene, cfg.levels[0], 777, spec.max_depth)     # warm-up (compile), not recorded
+    records = []
+    for i, spp in enumerate(cfg.levels):
+        if i:
+            C.render(methods[0], scene, spp, 777, spec.max_depth)  # the level's memory, not recorded
+        outs = {m.name: [] for m in methods}
+        needed = {m.name: cfg.seeds for m in methods}
+        k = 0
+        while any(len(outs[n]) < needed[n] for n in outs):
+            turn = methods[k % len(methods):] + methods[:k % len(methods)]
+            for m in turn:
+                if len(outs[m.name]) < needed[m.name]:
+                    outs[m.name].append(C.render(m, scene, spp, level_seed(i, len(outs[m.name])),
+                                                 spec.max_depth))
+            if k == 0:
+                needed = {n: runs_needed(cfg, o[0]) for n, o in outs.items()}
+            k += 1
+        for m in methods:
+            records.append(level_record(spec, ref, m, spp, outs[m.name], progress))
+    return records
+
+
 def method_records(spec, scene, ref, m, cfg: Config, target_time, progress) -> list:
-    """One method's records: BDPT at the fixed spp levels; a Mitsuba integrator (once
-    ``target_time`` is known) doubling its spp until it has used that much time."""
+    """One method's records: a Mitsuba integrator (once ``target_time`` is known)
+    doubling its spp until it has used that much time; else the fixed spp levels."""
     C.render(m, scene, cfg.levels[0], 777, spec.max_depth)     # warm-up (compile), not recorded
-    spp_list = list(cfg.levels) if m.engine == "bdpt" or target_time is None else None
     records = []
     i, spp = 0, 1
     while True:
-        if spp_list is not None:
-            if i >= len(spp_list):
+        if target_time is None:
+            if i >= len(cfg.levels):
                 break
-            spp = spp_list[i]
-        rec = level_record(spec, scene, ref, m, cfg, spp, i)
+            spp = cfg.levels[i]
+        outs = [C.render(m, scene, spp, level_seed(i, 0), spec.max_depth)]
+        outs += [C.render(m, scene, spp, level_seed(i, k), spec.max_depth)
+                 for k in range(1, runs_needed(cfg, outs[0]))]
+        rec = level_record(spec, ref, m, spp, outs, progress)
         records.append(rec)
-        progress("  %-20s %-14s spp=%-6d time=%8.4fs relMSE=%.4g MARE=%.4g%s"
-                 % (spec.name, m.name, spp, rec["time"], rec["relmse"], rec["mare"],
-                    "  NONFINITE=%d" % rec["nonfinite"] if rec["nonfinite"] else ""))
         i += 1
-        if spp_list is None:
-            # Mitsuba: double until it has used BDPT's time (and has >= len(levels) points).
+        if target_time is not None:
+            # Double until it has used BDPT's time (and has >= len(levels) points).
             if (rec["time"] >= target_time and i >= len(cfg.levels)) or spp * 2 > cfg.match_cap:
                 break
             spp *= 2
     return records
 
 
-def level_record(spec, scene, ref, m, cfg: Config, spp: int, i: int) -> dict:
-    """The renders of one method at one spp level (the i-th), timed and compared with ref."""
-    outs = [C.render(m, scene, spp, 1 + 31 * i, spec.max_depth)]
-    # Short renders are timed noisily on a busy machine and their errors vary a lot
-    # between seeds (fireflies): repeat them (median time, mean error).
-    n_runs = max(cfg.seeds, cfg.short_repeats if outs[0].timing.run < cfg.short_time else 1)
-    outs += [C.render(m, scene, spp, 1 + 7919 * k + 31 * i, spec.max_depth) for k in range(1, n_runs)]
+def level_seed(i: int, k: int) -> int:
+    """The seed of the k-th render at the i-th spp level."""
+    return 1 + 7919 * k + 31 * i
+
+
+def runs_needed(cfg: Config, first) -> int:
+    """Renders per level: cfg.seeds; short renders are timed noisily on a busy machine
+    and their errors vary a lot between seeds (fireflies): repeat them (median time,
+    mean error)."""
+    return max(cfg.seeds, cfg.short_repeats if first.timing.run < cfg.short_time else 1)
+
+
+def level_record(spec, ref, m, spp: int, outs: list, progress) -> dict:
+    """One method's renders at one spp level, timed and compared with ref."""
     h, w = ref.shape[:2]
-    return {"scene": spec.name, "method": m.name, "spp": spp,
-            "time": C.median([o.timing.run for o in outs]), "renders": len(outs),
-            "wall": C.median([o.timing.wall for o in outs]),
-            "compile": C.median([o.timing.compile for o in outs]),
-            "relmse": float(np.mean([C.rel_mse(o.image, ref) for o in outs])),
-            "mare": float(np.mean([C.mare(o.image, ref) for o in outs])),
-            "mean": float(np.mean(outs[0].image)),
-            "nonfinite": sum(C.bad_pixels(o.image) for o in outs),
-            "rays_per_sample": outs[0].rays_per_sample, "pixels": w * h,
-            "kernels": outs[0].timing.kernels, "passes": outs[0].passes}
+    rec = {"scene": spec.name, "method": m.name, "spp": spp,
+           "time": C.median([o.timing.run for o in outs]), "renders": len(outs),
+           "wall": C.median([o.timing.wall for o in outs]),
+           "compile": C.median([o.timing.compile for o in outs]),
+           "relmse": float(np.mean([C.rel_mse(o.image, ref) for o in outs])),
+           "mare": float(np.mean([C.mare(o.image, ref) for o in outs])),
+           "mean": float(np.mean(outs[0].image)),
+           "nonfinite": sum(C.bad_pixels(o.image) for o in outs),
+           "rays_per_sample": outs[0].rays_per_sample, "pixels": w * h,
+           "kernels": outs[0].timing.kernels, "passes": outs[0].passes}
+    progress("  %-20s %-14s spp=%-6d time=%8.4fs relMSE=%.4g MARE=%.4g%s"
+             % (spec.name, m.name, spp, rec["time"], rec["relmse"], rec["mare"],
+                "  NONFINITE=%d" % rec["nonfinite"] if rec["nonfinite"] else ""))
+    return rec
 
 
 def estimate_mitsuba_rays(scene, spec, methods, records) -> None:
@@ -262,10 +307,28 @@ def equal_comparison(result, key="time", baseline="path", budget_method="bdpt-po
 
 
 def compare(r: dict) -> None:
-    """A scene result's equal-time and equal-ray comparisons."""
+    """A scene result's equal-time and equal-ray comparisons, and the weighting
+    schemes' against the power heuristic."""
     base = r.get("baseline", "path")
     r["equal_time"] = equal_comparison(r, "time", baseline=base)
     r["equal_rays"] = equal_comparison(r, "rays", baseline=base)
+    r["weighting"] = weighting_comparison(r)
+
+
+def weighting_schemes(r: dict) -> list:
+    """The MIS weighting schemes (C.WEIGHTING) among a scene result's methods."""
+    present = {x["method"] for x in r["records"]}
+    return [m for m in C.WEIGHTING if m in present]
+
+
+def weighting_comparison(r: dict) -> dict | None:
+    """Each weighting scheme's error at the power heuristic's time and at its spp (x =
+    power's last level), as ratios to power's; None without power and another scheme."""
+    schemes = weighting_schemes(r)
+    if "bdpt-power" not in schemes or len(schemes) < 2:
+        return None
+    mine = dict(r, records=[x for x in r["records"] if x["method"] in schemes])
+    return {key: equal_comparison(mine, key, baseline="bdpt-power") for key in ("time", "spp")}
 
 
 # -- throughput & scaling ------------------------------------------------------------------------------
@@ -390,10 +453,6 @@ def new_results(mode: str, cmd: str, cfg: Config, methods) -> dict:
         ok, why = C.method_supported(C.METHODS[name])
         if not ok:
             res["notes"].append("method %s skipped: %s" % (name, why))
-    if "bdpt-pt" not in res["methods"]:
-        res["notes"].append("the engine has no PT-only / LT-only strategy switch (`strategies=`); "
-                            "'bdpt-no-lt' (light_image=False) still uses connections and NEE, and "
-                            "Mitsuba's path / ptracer stand in for pure path / light tracing")
     return res
 
 
@@ -407,8 +466,8 @@ def error_section(res: dict, cfg: Config, methods, out: Path, progress) -> None:
             res["skipped_scenes"].append((name, spec.available()[1]))
             continue
         compare(r)
-        r["chart"] = "%s_error_time.png" % name
-        r["weighting_chart"] = "%s_weighting.png" % name
+        r["chart"] = None if cfg.weighting else "%s_error_time.png" % name
+        r["weighting_chart"] = "%s_weighting.png" % name if r["weighting"] else None
         charts.scene_charts(r, out / "charts", methods)
         res["scenes"].append(r)
         C.write_json(out / "results.json", res)

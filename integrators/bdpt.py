@@ -113,7 +113,7 @@ def _make_class(base: type) -> type:
 
         def render(self, scene: mi.Scene, sensor=0, seed=0, spp: int = 0,
                    develop: bool = True, evaluate: bool = True) -> mi.TensorXf:
-            from bdpt_drjit.render import render
+            from bdpt_drjit.api import render
             if not develop:
                 raise ValueError("bdpt: develop=False is not supported")
             with dr.suspend_grad():

@@ -1,6 +1,8 @@
 """Smoke test of the benchmark suite: ``python -m benchmarks.run --smoke --out DIR``
 (2 scenes at 16x16, 2 spp levels, no RSS subprocesses) must exit 0 and write its
-results, charts and RESULTS.md into DIR, and nothing into the repository."""
+results, charts and RESULTS.md into DIR, and nothing into the repository; the same
+for ``--weighting`` (the MIS weighting schemes, one scene); and the blocks of
+RESULTS.md that a published run rewrites."""
 import json
 import os
 import subprocess
@@ -14,14 +16,23 @@ from conftest import cli_env
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def run_benchmark(out: Path, *args):
+    pytest.importorskip("matplotlib")
+    return subprocess.run([sys.executable, "-m", "benchmarks.run", "--smoke", "--out", str(out), *args],
+                          cwd=str(ROOT), capture_output=True, text=True, timeout=300,
+                          env=cli_env())
+
+
 @pytest.fixture(scope="module")
 def smoke(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench-smoke")
-    pytest.importorskip("matplotlib")
-    proc = subprocess.run([sys.executable, "-m", "benchmarks.run", "--smoke", "--out", str(out)],
-                          cwd=str(ROOT), capture_output=True, text=True, timeout=300,
-                          env=cli_env())
-    return proc, out
+    return run_benchmark(out), out
+
+
+@pytest.fixture(scope="module")
+def weighting(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench-weighting")
+    return run_benchmark(out, "--weighting", "--scenes", "cornell-diffuse"), out
 
 
 def test_smoke_exits_zero(smoke):
@@ -66,3 +77,44 @@ def test_profile_pass_reports_kernels_against_path():
     assert lines[1].startswith("bdpt pass: 512 lanes") and "JIT" in lines[1]
     assert any(line.startswith("Mitsuba's path: 512 lanes") for line in lines)
     assert lines[-1].startswith("bdpt / path:")
+
+
+def test_weighting_renders_the_four_schemes_and_reports_them(weighting):
+    proc, out = weighting
+    assert proc.returncode == 0, "benchmarks.run --weighting failed:\n%s\n%s" % (proc.stdout[-3000:],
+                                                                                proc.stderr[-3000:])
+    res = json.loads((out / "results.json").read_text())
+    assert res["config"]["weighting"] and "throughput" not in res and "pyramids" not in res
+    (s,) = res["scenes"]
+    assert {r["method"] for r in s["records"]} == {"bdpt-power", "bdpt-balance", "bdpt-uniform",
+                                                  "bdpt-lafortune"}
+    assert s["chart"] is None and (out / "charts" / s["weighting_chart"]).stat().st_size > 0
+    eq = s["weighting"]["time"]["methods"]
+    assert eq["bdpt-power"]["err_ratio"] == 1 and eq["bdpt-uniform"]["err_at_x"] > 0
+    md = (out / "RESULTS.md").read_text()
+    assert "## MIS weighting schemes" in md and "| cornell-diffuse |" in md
+    assert "## Error at equal time" not in md          # no baseline (path) in this run
+    assert "--weighting" in md
+
+
+def test_a_report_replaces_its_block_of_results_md(tmp_path):
+    from benchmarks import common as C
+    from benchmarks.report import as_block
+    page = tmp_path / "RESULTS.md"
+    page.write_text("# Results\n\n## Suite\n\nReading.\n\n<!-- suite: begin -->\nold\n"
+                    "<!-- suite: end -->\n\n## Other\n")
+    C.replace_block(page, "suite", as_block("# Benchmark results (FULL run)\n\nReproduce: x\n\n"
+                                            "## Scene suite\n\n```\n# not a heading\n```\n"))
+    assert page.read_text() == ("# Results\n\n## Suite\n\nReading.\n\n<!-- suite: begin -->\n"
+                                "Reproduce: x\n\n### Scene suite\n\n```\n# not a heading\n```\n"
+                                "<!-- suite: end -->\n\n## Other\n")
+    with pytest.raises(SystemExit, match="weighting: begin"):
+        C.replace_block(page, "weighting", "text")
+
+
+def test_the_published_blocks_exist_in_results_md():
+    """The blocks that benchmarks.run (--section: suite, weighting, media, scaling) and
+    cluster_scaling publish into, each once."""
+    from benchmarks import common as C
+    for name in ("suite", "weighting", "media", "scaling", "cluster_scaling"):
+        C.check_block(C.BENCH / "RESULTS.md", name)

@@ -1,0 +1,39 @@
+"""``bdpt_drjit.render``: one call that renders here (render.Renderer) or on Ray
+workers (cluster.py).  It sits above both: render.py knows nothing of clusters and
+cluster.py imports render.Renderer, so imports run one way (tests/test_layout.py)."""
+from __future__ import annotations
+
+import os
+
+import mitsuba as mi
+
+from .render import Renderer, RenderResult
+
+
+def render(scene, spp: int | None = None, seed: int = 0, sensor=0,
+           strategy_images: bool = False, cluster: str | None = None,
+           scene_params: dict | None = None, **settings) -> RenderResult:
+    """Render ``scene`` (a ``mi.Scene`` or a path to an XML file) with BDPT.
+
+    Keyword settings: see ``bdpt_drjit.settings.PARAMS`` (max_depth, rr_depth, mis,
+    light_image, hide_emitters, technique, strategy_subset, samples_per_pass,
+    memory_budget).  With ``strategy_images=True`` the result's
+    ``strategy_images[(s, t)]`` holds every strategy's MIS-weighted image; they sum
+    to ``image``.  ``scene_params``: the XML file's parameters ($name).
+    ``cluster``: render the passes on Ray workers (``"local:N"``, ``"auto"`` or a Ray
+    address; ``scene`` must then be a file path): the same estimator (cluster.py).
+    """
+    if cluster is not None:
+        from .cluster import render_on_cluster
+        return render_on_cluster(scene, cluster, spp=spp, seed=seed, sensor=sensor,
+                                 strategy_images=strategy_images, scene_params=scene_params,
+                                 **settings)
+    if isinstance(scene, (str, os.PathLike)):
+        scene = mi.load_file(str(scene), **(scene_params or {}))
+    elif scene_params:
+        raise ValueError("bdpt: scene_params apply to a scene file, not to a loaded mi.Scene")
+    r = Renderer(scene, sensor=sensor, spp=spp, seed=seed, strategy_images=strategy_images,
+                 **settings)
+    while not r.done:
+        r.run_pass()
+    return r.result()
