@@ -695,8 +695,8 @@ def calibrate(repeats: int = 5) -> UnitCosts:
     they counted, and Mitsuba's path per ray, each the median of ``repeats`` warm runs
     (the first run, which compiles, is left out)."""
     variant = mi.variant()
-    print("bdpt: measuring the unit costs of %s on this machine (once; 'bdpt calibrate' "
-          "measures again)" % variant, file=sys.stderr, flush=True)
+    print("bdpt: measuring this machine's unit costs for %s, a few seconds (stored for "
+          "later renders; 'bdpt calibrate' measures again)" % variant, file=sys.stderr, flush=True)
     res = CALIBRATION_RES["cuda" if variant.startswith("cuda") else "llvm"]
     box = mi.cornell_box()
     box["sensor"]["film"].update(width=res, height=res)

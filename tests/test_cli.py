@@ -545,7 +545,7 @@ def test_unit_costs_are_measured_once_and_by_calibrate(tmp_path):
     env = {"BDPT_CALIBRATION": "", "XDG_CACHE_HOME": str(tmp_path / "cache")}
     args = ["render", CORNELL, *TINY, "--spp", 16, "--max-depth", 3]
     first = ok(run_cli(*args, "-o", tmp_path / "a.exr", env=env))
-    assert "measuring the unit costs" in first.stderr
+    assert "measuring this machine's unit costs" in first.stderr
     files = list((tmp_path / "cache" / "bdpt-drjit").glob("bdpt-units-llvm_ad_rgb-*.json"))
     assert len(files) == 1
     stored = json.loads(files[0].read_text())["variants"]["llvm_ad_rgb"]
