@@ -253,6 +253,7 @@ class Renderer:
         camera_stage.check_settings(self.camera, self.settings)
         # Refuses what bdpt would get wrong (media, unsupported plugins), warns of the rest.
         support.check(scene, self.sensor)
+        support.warn_of_light_tracing_paths(scene, self.settings)
         self.emitters = Emitters(scene)
         self.media = Media(scene, self.sensor)
         fixed = fixed_budget(self.settings)

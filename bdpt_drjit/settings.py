@@ -58,7 +58,9 @@ PARAMS = (
           "``lafortune`` (Lafortune & Willems' specularity weights; no light image).",
           choices=HEURISTICS),
     Param("light_image", bool, True, "Include the t = 1 (light tracing) strategies, "
-          "splatted onto the film; without them MIS renormalizes over the rest."),
+          "splatted onto the film; without them MIS renormalizes over the rest, and the "
+          "paths only they sample (a point light's caustics) are missing: a warning "
+          "says so."),
     Param("hide_emitters", bool, False, "Hide emitters seen directly by the camera."),
     Param("technique", str, "all", "Render the single strategy ``\"s,t\"`` without MIS "
           "weighting (for tests and for studying strategies)."),

@@ -139,6 +139,26 @@ def check(scene: mi.Scene, sensor: mi.Sensor) -> list:
     return verdicts
 
 
+def warn_of_light_tracing_paths(scene: mi.Scene, settings) -> None:
+    """Without the light image (``light_image`` false, ``mis`` lafortune), a path from
+    a point-like light through mirrors or glass to a surface the camera sees (a
+    caustic of a point or spot light) has no strategy left: say so, where the scene has
+    such a light and a BSDF with a delta lobe.  (``strategy_subset`` pt asks for path
+    tracing, which misses them too, as Mitsuba's ``path`` does.)"""
+    if settings.light_image or settings.strategy_subset == "pt":
+        return
+    lights = [e for e in scene.emitters()
+              if mi.has_flag(e.flags(), mi.EmitterFlags.DeltaPosition)]
+    delta = [s for s in all_shapes(scene) if s.bsdf() is not None
+             and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.Delta)]
+    if lights and delta:
+        why = "mis='lafortune' has" if settings.mis == "lafortune" else "light_image is off:"
+        warnings.warn("bdpt: %s no light image (t = 1), the only strategy for light from %s "
+                      "reaching a surface the camera sees through %s (a caustic): that light "
+                      "is missing from the image" % (why, describe(lights[0]),
+                                                     describe(delta[0].bsdf())), stacklevel=3)
+
+
 def sensor_refusal(sensor: mi.Sensor) -> str | None:
     """Why bdpt cannot render through ``sensor`` (None: it can)."""
     if sensor.class_name() in SUPPORTED_SENSORS:

@@ -64,7 +64,9 @@ class PathState:
     depth: mi.UInt32        # j of the vertex z_j (or i of y_i) the ray will hit
     active: mi.Bool         # the subpath goes on
     rays: mi.UInt32         # rays this lane traced (statistics)
-    lw: mi.Float            # camera walk, mis="lafortune": product of W(z_m) so far
+    lw: mi.Float            # camera walk, mis="lafortune": product of W'(z_m), m < j,
+                            # at z_j (mis.lafortune_specularity)
+    lw_prev: mi.Float       # the same without z_{j-1}'s factor
     radiance: mi.Spectrum   # camera walk: sum of this sample's strategies
     hit: mi.Bool            # camera walk: the camera ray hit a surface (film alpha)
     last_item: mi.UInt32    # light walk: this lane's last stored vertex (or NONE)
@@ -83,6 +85,7 @@ class PathState:
                          d_end=mi.Float(d_vcm),
                          prev=prev, depth=dr.ones(mi.UInt32, n), active=mi.Bool(active),
                          rays=dr.zeros(mi.UInt32, n), lw=dr.ones(mi.Float, n),
+                         lw_prev=dr.ones(mi.Float, n),
                          radiance=dr.zeros(mi.Spectrum, n), hit=dr.zeros(mi.Bool, n),
                          last_item=dr.full(mi.UInt32, NONE, n), slot=dr.zeros(mi.UInt32, n),
                          specular_z1=dr.zeros(mi.Bool, n),
@@ -205,6 +208,9 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
         connectible = state.active & v.smooth
         if ctx.emitters.count:
             _add(ctx, state, 0, t, connect.emission_hit(ctx, state, v))
+        if ctx.weights.lafortune:   # past a delta z_j, no connection ends at z_{j-1}
+            state.lw = dr.select(v.smooth, state.lw, state.lw_prev)
+        if ctx.emitters.count:
             _add(ctx, state, 1, t, *connect.next_event(
                 ctx, state, v, u.endpoint, connectible & ctx.strategies.enabled(1, t)))
         if store is not None:
@@ -216,6 +222,7 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
         if ctx.strategies.light_first_hits:     # past z_1 only through a delta lobe
             state.active &= ~first | delta
         if ctx.weights.lafortune:
+            state.lw_prev = mi.Float(state.lw)
             state.lw *= ctx.weights.specularity(v.bsdf.flags(), delta)
 
     return _loop("camera subpaths", state, ctx.camera_sampler, step)

@@ -110,3 +110,35 @@ def test_glass_and_mirror_spheres_small_light():
     assert_statistically_equal(ours, lt, mask=~spec, what="spheres, diffuse pixels vs ptracer")
     pt = mitsuba_images(scene, "path", 512, max_depth=8, hide_emitters=True)
     assert_statistically_equal(ours, pt, mask=spec, blocks=2, what="spheres, specular pixels vs path")
+
+
+def _light_above_a_mirror():
+    """A floor lit only through a mirror: a large area light 1 above it faces up, to a
+    mirror 1 above the light (L, mirror, floor, camera)."""
+    T = mi.ScalarTransform4f
+    return mi.load_dict({
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": 50,
+                   "to_world": T().look_at(origin=[0, 0.8, 3], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 16, "height": 16,
+                            "rfilter": {"type": "box"}}},
+        "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(3),
+                  "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.7}}},
+        "mirror": {"type": "rectangle", "bsdf": {"type": "conductor"},
+                   "to_world": T().translate([0, 2, 0]).rotate([1, 0, 0], 90).scale(3)},
+        "light": {"type": "rectangle",
+                  "to_world": T().translate([0, 1, 0]).rotate([1, 0, 0], -90).scale(0.5),
+                  "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 10.0}}},
+    })
+
+
+def test_lafortune_weights_keep_light_through_a_mirror():
+    """L&W's weights follow the camera vertices' specularity; a connection from the
+    floor to the mirror's vertex cannot be made, yet it got the path's whole weight, and
+    the image came out black.  Its share now goes on along the camera path (to the
+    camera subpath that hits the light through the mirror): Veach's BDPT agrees."""
+    scene = _light_above_a_mirror()
+    ours = bdpt_images(scene, 64, seeds=8, max_depth=4, mis="lafortune")
+    ref = bdpt_images(scene, 64, seeds=8, max_depth=4, light_paths=1, connections="all")
+    assert np.mean(ref) > 0.05
+    assert_statistically_equal(ours, ref, what="L&W weights, light through a mirror")

@@ -208,6 +208,18 @@ def test_no_emitters_renders_black_with_a_warning():
     assert res.image.max() == 0
 
 
+@pytest.mark.parametrize("settings", [{"mis": "lafortune"}, {"light_image": False}])
+def test_point_light_caustics_without_a_light_image_are_announced(settings):
+    """Only light tracing samples a point light's caustic: without a light image it is
+    missing from the image, and the render says so; with it, nothing is said."""
+    scene = mi.load_file(scene_path("point-caustic.xml"), resx=8, resy=8)
+    with pytest.warns(UserWarning, match="no light image .* caustic"):
+        bdpt_drjit.render(scene, spp=1, max_depth=3, **settings)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        bdpt_drjit.render(scene, spp=1, max_depth=3, light_paths=1, connections="all")
+
+
 def test_point_and_spot_lights_direct(box):
     """Delta-position emitters: NEE and light tracing agree with Mitsuba's path."""
     T = mi.ScalarTransform4f
