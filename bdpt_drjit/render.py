@@ -684,10 +684,11 @@ class Renderer:
 
 
 # The calibration render: the Cornell box on a film of RES^2 pixels, so that each of
-# the pilot's passes takes half of it at 1 sample, as a pilot on a large film does
-# (the real passes' occupancy: on 2 cores the camera walk timed 1.8x dearer per
-# sample over 16384 lanes than over 32768; a GPU wants 2^18 and more).
-CALIBRATION_RES = {"llvm": 256, "cuda": 1024}
+# the pilot's passes takes a quarter of it at 1 sample (optimizer.Pilot.stride): 32761
+# lanes on a CPU, 2^18 on a GPU, the occupancy of real passes (on 2 cores the camera
+# walk timed 1.8x dearer per sample over 16384 lanes than over 32768; an H100 holds
+# 132 x 2048 threads).
+CALIBRATION_RES = {"llvm": 362, "cuda": 1024}
 
 
 def calibrate(repeats: int = 5) -> UnitCosts:

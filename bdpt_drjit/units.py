@@ -27,7 +27,7 @@ import mitsuba as mi
 
 from ._version import __version__
 
-FORMAT = 1         # the file's layout; a file of another one is measured again
+FORMAT = 2         # the file's layout and calibration; a file of another is measured again
 
 
 @dataclass(frozen=True)
