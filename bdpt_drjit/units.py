@@ -15,6 +15,7 @@ else ``bdpt-units-<variant>-<machine>.json`` under ``$XDG_CACHE_HOME/bdpt-drjit`
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -43,10 +44,11 @@ class UnitCosts:
         return " ".join("%s=%.3g" % (f.name, getattr(self, f.name)) for f in fields(self))
 
 
-def machine() -> str:
+@functools.lru_cache(maxsize=None)
+def machine(variant: str) -> str:
     """What the units depend on besides the variant: the backend's device and the
-    versions of the code that runs (a short hash)."""
-    if mi.variant().startswith("cuda"):
+    versions of the code that runs (read once per process)."""
+    if variant.startswith("cuda"):
         device = "cuda:" + str(dr.detail.cuda_compute_capability()
                                if hasattr(dr.detail, "cuda_compute_capability") else "")
         for info in sorted(Path("/proc/driver/nvidia/gpus").glob("*/information")):
@@ -74,7 +76,7 @@ def path(variant: str | None = None) -> Path:
         return Path(fixed)
     variant = variant or mi.variant()
     cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "bdpt-drjit"
-    key = hashlib.sha1(machine().encode()).hexdigest()[:10]
+    key = hashlib.sha1(machine(variant).encode()).hexdigest()[:10]
     return cache / ("bdpt-units-%s-%s.json" % (variant, key))
 
 
@@ -96,7 +98,7 @@ def save(units: UnitCosts, variant: str | None = None) -> Path:
     """Store ``units`` for the variant (beside other variants' in a fixed file)."""
     variant = variant or mi.variant()
     target = path(variant)
-    data = {"format": FORMAT, "machine": machine(), "variants": {}}
+    data = {"format": FORMAT, "machine": machine(variant), "variants": {}}
     try:
         old = json.loads(target.read_text())
         if old.get("format") == FORMAT:
