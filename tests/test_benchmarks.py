@@ -118,3 +118,17 @@ def test_the_published_blocks_exist_in_results_md():
     from benchmarks import common as C
     for name in ("suite", "weighting", "media", "scaling", "cluster_scaling"):
         C.check_block(C.BENCH / "RESULTS.md", name)
+
+
+def test_efficiency_against_path_without_a_reference():
+    """``python -m benchmarks.efficiency``: each method's 1 / (relative variance across
+    seeds x time) as a ratio to path's, path's being 1."""
+    proc = subprocess.run([sys.executable, "-m", "benchmarks.efficiency", "--res", "16",
+                           "--spp", "4", "--seeds", "2", "--scenes", "cornell-diffuse"],
+                          cwd=str(ROOT), capture_output=True, text=True, timeout=300, env=cli_env())
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    row = [line for line in proc.stdout.splitlines() if line.startswith("| cornell-diffuse")]
+    assert len(row) == 1
+    default, veach, path = [c.strip() for c in row[0].split("|")[3:6]]
+    assert path.startswith("**1.00** (8 spp,")
+    assert default.startswith("**") and "(4 spp," in default and "(2 spp," in veach
