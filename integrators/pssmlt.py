@@ -35,7 +35,7 @@ sample and one light subpath).
      - Independent samples that estimate b and seed the chains (Default: 100000;
        Mitsuba 0.6: ``luminanceSamples``)
    * - chains
-     - Markov chains (lanes); 0 = min(65536, max(1024, mutations / 16)) (Default: 0)
+     - Markov chains (lanes); 0 = min(65536, max(4096, mutations / 64)) (Default: 0)
    * - max_depth, rr_depth, mis, light_image, hide_emitters
      - As for ``bdpt``
 """

@@ -200,7 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--bootstrap-samples", type=int_at_least(1), metavar="N",
                    help="independent samples estimating b and seeding the chains (default 100000)")
     t.add_argument("--chains", type=int_at_least(0), metavar="N",
-                   help="Markov chains (default 0: min(65536, max(1024, mutations / 16)))")
+                   help="Markov chains (default 0: min(65536, max(4096, mutations / 64)))")
     t.add_argument("--max-depth", type=int_at_least(-1), help="longest path in edges (-1: unbounded)")
     t.add_argument("--rr-depth", type=int_at_least(1), help="vertex where Russian roulette starts")
     t.add_argument("--mis", choices=("power", "balance", "uniform"), help="MIS heuristic")
