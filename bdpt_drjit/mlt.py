@@ -22,7 +22,11 @@ image of pixel j and N the film's pixels, I_j = N E_u[sum of records in j], and
 E_u[g] = b E_pi[g / f] with b = E_u[f] (Veach 1997, eq. 11.8; Kelemen 2002, eq. 9),
 so each record is splatted times b N / (chains x iterations) over its state's f.
 Every iteration adds weights a + (1 - a) = 1 per chain: the image's luminance sum is
-b N at every iteration, the bootstrap's estimate.
+b N at every iteration, the bootstrap's estimate.  With ``large_step_mis`` (the
+default) large-step proposals also count as independent samples, weighted with the
+chain's states by the balance heuristic (Kelemen 2002, sec. 4; pss.py): dark regions
+get their noise from the large steps' rate instead of from rare chain visits, and the
+sum is b N in expectation only.
 
 Chain state stays in Dr.Jit arrays (``Chains``): the two streams' vectors, f(x), the
 camera record and the current state's splats (a list compacted each iteration).
@@ -60,7 +64,7 @@ STORED_DEPTHS = 12
 # direction, lens sample of (1,1) (walk._light_start).
 PER_DEPTH, CAMERA_START, LIGHT_START = 6, 6, 7
 MLT_PARAMS = {"mutations_per_pixel": 100, "large_step_probability": 0.3,
-              "bootstrap_samples": 100000, "chains": 0}
+              "bootstrap_samples": 100000, "chains": 0, "large_step_mis": True}
 BOOTSTRAP_LANES = 1 << 16       # lanes of a bootstrap batch (at least the chains)
 BDPT_PARAMS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
 
@@ -134,7 +138,11 @@ def mlt_settings(values: dict) -> tuple[dict, dict]:
     parameters that have no meaning for a chain's sample (budgets, techniques)."""
     mlt, bdpt = dict(MLT_PARAMS), {}
     for key, value in values.items():
-        if key in MLT_PARAMS:
+        if key in MLT_PARAMS and isinstance(MLT_PARAMS[key], bool) and isinstance(value, str):
+            if value.lower() not in ("true", "false", "1", "0"):
+                raise ValueError("pssmlt: %s must be true or false, got %r" % (key, value))
+            mlt[key] = value.lower() in ("true", "1")
+        elif key in MLT_PARAMS:
             mlt[key] = type(MLT_PARAMS[key])(value)
         elif key in ("maxDepth", "rrDepth", "hideEmitters", "lightImage") or key in BDPT_PARAMS:
             bdpt[key] = value
@@ -188,6 +196,7 @@ class MLTRenderer:
         self.pixels = int(dr.prod(film.crop_size()))
         self.film = FilmAccumulator(film, coalesce=False)
         self.p_large = mlt["large_step_probability"]
+        self.large_step_mis = mlt["large_step_mis"]
         self.mutations = mlt["mutations_per_pixel"] * self.pixels
         # Automatic: chains of at least 64 mutations, 4096 to 65536 of them (fewer
         # lanes cost more per mutation: 16.7 against 7.8 us at 4096 and 16384 chains,
@@ -327,7 +336,9 @@ class MLTRenderer:
                                        pss.PSSSampler.make(n, tails[1], chain, light_u, dims[1])))
         self.rays += ev.rays
         a = pss.acceptance(x.f, ev.f)
-        wy, wx = pss.expected_value_weights(x.f, ev.f, a)
+        p_mis = self.p_large if self.large_step_mis else 0.0
+        wy, wx = pss.expected_value_weights(x.f, ev.f, a, dr.opaque(mi.Float, self.b), large,
+                                            dr.opaque(mi.Float, p_mis))
         for records, w in ((ev.camera, wy), (ev.splats, wy), (x.camera, wx), (x.splats, wx)):
             self._put(records, w)
         accepted = pss.hash_uniform(step_key, chain, 1) < a
@@ -336,8 +347,8 @@ class MLTRenderer:
         self.acceptance.append(float(mean_a[0]))
 
     def _put(self, records: Records, w: mi.Float) -> None:
-        """Records on the film, each times its chain's weight (b and the film's scale
-        are applied once, in ``tensor``)."""
+        """Records on the film, each times its chain's weight (the film's scale is
+        applied once, in ``tensor``)."""
         if not dr.width(records.lane):
             return
         weight = dr.gather(mi.Float, w, records.lane)
@@ -345,9 +356,10 @@ class MLTRenderer:
 
     # -- results ------------------------------------------------------------------------
     def tensor(self) -> mi.TensorXf:
-        """The image so far: the film's records times b N / (chains x iterations)."""
+        """The image so far: the film's weighted records times N / (chains x
+        iterations)."""
         samples = max(self.chains * self.iterations_done, 1)
-        return self.film.develop_light(self.b * self.pixels / samples)
+        return self.film.develop_light(self.pixels / samples)
 
     def result(self) -> RenderResult:
         tensor = self.tensor()
@@ -359,6 +371,7 @@ class MLTRenderer:
                                    "iterations": self.iterations_done,
                                    "mutations_per_pixel": mpp,
                                    "large_step_probability": self.p_large,
+                                   "large_step_mis": self.large_step_mis,
                                    "bootstrap_samples": self.bootstrap_samples,
                                    "bootstrap_time": self.bootstrap_time,
                                    "acceptance": float(np.mean(self.acceptance))

@@ -136,10 +136,19 @@ def acceptance(fx: mi.Float, fy: mi.Float) -> mi.Float:
     return dr.select(fy > 0.0, a, 0.0)
 
 
-def expected_value_weights(fx: mi.Float, fy: mi.Float, a: mi.Float):
-    """Veach's expected-value splatting (1997, sec. 11.3.3; Kelemen 2002, sec. 4):
-    every iteration records both states, the proposal with a / f(y) and the current
-    one with (1 - a) / f(x), each record then times b (the mean of f)."""
-    wy = dr.select(fy > 0.0, a / dr.maximum(fy, 1e-30), 0.0)
-    wx = dr.select(fx > 0.0, (1.0 - a) / dr.maximum(fx, 1e-30), 0.0)
+def expected_value_weights(fx: mi.Float, fy: mi.Float, a: mi.Float, b, large=False,
+                           p_large=0.0):
+    """The record weights of both states, b included: Veach's expected-value splatting
+    (1997, sec. 11.3.3) records the proposal with a b / f(y) and the current state
+    with (1 - a) b / f(x).  With ``p_large`` > 0, Kelemen's multiple importance
+    sampling of large steps (2002, sec. 4): a large-step proposal is also an
+    independent uniform sample, so each record is weighted by the balance heuristic
+    over the chain's density f / b and the large steps' density p_large: the proposal
+    with (a + [large]) / (f(y) / b + p_large), the state with (1 - a) / (f(x) / b +
+    p_large); dark regions then get the large steps' samples at their own rate."""
+    pb = b * p_large
+    on = dr.select(mi.Bool(large) & (mi.Float(p_large) > 0.0), 1.0, 0.0)
+    dy, dx = fy + pb, fx + pb
+    wy = dr.select(dy > 0.0, b * (a + on) / dr.maximum(dy, 1e-30), 0.0)
+    wx = dr.select(dx > 0.0, b * (1.0 - a) / dr.maximum(dx, 1e-30), 0.0)
     return wy, wx

@@ -34,6 +34,9 @@ sample and one light subpath).
    * - bootstrap_samples
      - Independent samples that estimate b and seed the chains (Default: 100000;
        Mitsuba 0.6: ``luminanceSamples``)
+   * - large_step_mis
+     - Weight large-step proposals also as independent samples (Kelemen 2002's MIS)
+       (Default: true)
    * - chains
      - Markov chains (lanes); 0 = min(65536, max(4096, mutations / 64)) (Default: 0)
    * - max_depth, rr_depth, mis, light_image, hide_emitters

@@ -49,21 +49,23 @@ def test_image_matches_bdpt():
     assert_statistically_equal(runs, refs, blocks=4, what="pssmlt vs bdpt")
 
 
-@pytest.mark.parametrize("p_large", [0.0, 1.0])
-def test_small_or_large_steps_alone_match_bdpt(p_large):
+@pytest.mark.parametrize("p_large, mis", [(0.0, True), (1.0, True), (0.3, False)])
+def test_other_steps_match_bdpt(p_large, mis):
     """Small steps only (the chains move by Kelemen's steps from the bootstrap's
-    states) and large steps only (an independence sampler) agree too."""
+    states), large steps only (an independence sampler), and the default steps
+    without Kelemen's MIS of large steps agree too."""
     scene = _box()
-    runs = [_mlt(scene, seed, large_step_probability=p_large).image for seed in range(6)]
+    runs = [_mlt(scene, seed, large_step_probability=p_large, large_step_mis=mis).image
+            for seed in range(6)]
     refs = [bdpt_drjit.render(scene, spp=32, seed=200 + s, max_depth=5, light_paths=1,
                               connections="all").image for s in range(6)]
-    assert_statistically_equal(runs, refs, blocks=4, what="p_large %g" % p_large)
+    assert_statistically_equal(runs, refs, blocks=4, what="p_large %g, mis %s" % (p_large, mis))
 
 
 def test_image_sum_is_b_at_every_iteration():
     scene = _box()
     r = mlt.MLTRenderer(scene, seed=3, mutations_per_pixel=8, bootstrap_samples=8192,
-                        chains=512, max_depth=5)
+                        chains=512, max_depth=5, large_step_mis=False)
     assert r.b > 0
     while not r.done:
         r.run_iteration()
@@ -158,7 +160,8 @@ def test_cli(tmp_path):
     out = tmp_path / "box.exr"
     cmd = [sys.executable, "-m", "bdpt_drjit", "mlt", str(SCENES / "cornell-box.xml"),
            "--res", "16x16", "--spp", "64", "--chains", "256",
-           "--bootstrap-samples", "4096", "--max-depth", "5", "-o", str(out)]
+           "--bootstrap-samples", "4096", "--max-depth", "5", "--no-large-step-mis",
+           "-o", str(out)]
     p = subprocess.run(cmd + ["--time", "0.01"], capture_output=True, text=True, timeout=300,
                        env=cli_env())
     assert p.returncode == 0, p.stderr

@@ -199,6 +199,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="probability of a large step (default 0.3)")
     t.add_argument("--bootstrap-samples", type=int_at_least(1), metavar="N",
                    help="independent samples estimating b and seeding the chains (default 100000)")
+    t.add_argument("--no-large-step-mis", dest="large_step_mis", action="store_false",
+                   default=None, help="weight large steps as chain states only (no "
+                   "Kelemen MIS; the image's sum is then b N at every iteration)")
     t.add_argument("--chains", type=int_at_least(0), metavar="N",
                    help="Markov chains (default 0: min(65536, max(4096, mutations / 64)))")
     t.add_argument("--max-depth", type=int_at_least(-1), help="longest path in edges (-1: unbounded)")

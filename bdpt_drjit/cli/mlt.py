@@ -17,7 +17,8 @@ from .progress import exit_status, fmt_time
 from .scene import check_sensor_index, integrator_defaults, load_scene, scene_params, scene_path, setup_variant
 
 _BDPT_KEYS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
-_MLT_KEYS = ("mutations_per_pixel", "large_step_probability", "bootstrap_samples", "chains")
+_MLT_KEYS = ("mutations_per_pixel", "large_step_probability", "bootstrap_samples", "chains",
+             "large_step_mis")
 
 
 def _params(args, scene) -> dict:
