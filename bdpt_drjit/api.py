@@ -44,7 +44,7 @@ def render(scene, spp: int | None = None, seed: int = 0, sensor=0,
     if integrator != "bdpt":
         from . import mlt
         if spp:
-            settings.setdefault("mutations_per_pixel", spp)
+            settings["mutations_per_pixel"] = spp
         return mlt.render(scene, seed=seed, sensor=sensor, **settings)
     r = Renderer(scene, sensor=sensor, spp=spp, seed=seed, strategy_images=strategy_images,
                  **settings)

@@ -63,7 +63,7 @@ STORED_DEPTHS = 12
 # camera: film position, aperture, time, wavelength; light: emitter, position,
 # direction, lens sample of (1,1) (walk._light_start).
 PER_DEPTH, CAMERA_START, LIGHT_START = 6, 6, 7
-MLT_PARAMS = {"mutations_per_pixel": 100, "large_step_probability": 0.3,
+MLT_PARAMS = {"mutations_per_pixel": 0,           # 0: the sensor's sample count "large_step_probability": 0.3,
               "bootstrap_samples": 100000, "chains": 0, "large_step_mis": True}
 BOOTSTRAP_LANES = 1 << 16       # lanes of a bootstrap batch (at least the chains)
 BDPT_PARAMS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
@@ -149,9 +149,9 @@ def mlt_settings(values: dict) -> tuple[dict, dict]:
         else:
             raise ValueError("pssmlt: unknown or unsupported parameter '%s' (known: %s)"
                              % (key, ", ".join(list(MLT_PARAMS) + list(BDPT_PARAMS))))
-    if mlt["mutations_per_pixel"] <= 0 or mlt["bootstrap_samples"] <= 0 or mlt["chains"] < 0:
-        raise ValueError("pssmlt: mutations_per_pixel and bootstrap_samples must be positive "
-                         "and chains >= 0 (0: automatic)")
+    if mlt["mutations_per_pixel"] < 0 or mlt["bootstrap_samples"] <= 0 or mlt["chains"] < 0:
+        raise ValueError("pssmlt: bootstrap_samples must be positive, mutations_per_pixel "
+                         "and chains >= 0 (0: the sample count; automatic)")
     if not 0.0 <= mlt["large_step_probability"] <= 1.0:
         raise ValueError("pssmlt: large_step_probability must lie in [0, 1], got %g"
                          % mlt["large_step_probability"])
@@ -197,7 +197,8 @@ class MLTRenderer:
         self.film = FilmAccumulator(film, coalesce=False)
         self.p_large = mlt["large_step_probability"]
         self.large_step_mis = mlt["large_step_mis"]
-        self.mutations = mlt["mutations_per_pixel"] * self.pixels
+        mpp = mlt["mutations_per_pixel"] or self.sensor.sampler().sample_count()
+        self.mutations = mpp * self.pixels
         # Automatic: chains of at least 64 mutations, 4096 to 65536 of them (fewer
         # lanes cost more per mutation: 16.7 against 7.8 us at 4096 and 16384 chains,
         # door-ajar.xml 64x64 on 2 loaded cores; longer chains exploit more).

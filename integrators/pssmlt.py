@@ -28,7 +28,8 @@ sample and one light subpath).
    * - Parameter
      - Description
    * - mutations_per_pixel
-     - Mean mutations per pixel (Default: the sample count)
+     - Mean mutations per pixel; ``spp`` of ``mi.render`` overrides it (Default: 0, the
+       sensor's sample count)
    * - large_step_probability
      - Probability of a large step (Default: 0.3; Mitsuba 0.6: ``pLarge``)
    * - bootstrap_samples
@@ -85,9 +86,8 @@ def _make_class(base: type) -> type:
             if not develop:
                 raise ValueError("pssmlt: develop=False is not supported")
             settings = dict(self.settings)
-            if "mutations_per_pixel" not in settings:
-                chosen = mlt_sensor(scene, sensor)
-                settings["mutations_per_pixel"] = spp or chosen.sampler().sample_count()
+            if spp:
+                settings["mutations_per_pixel"] = spp
             with dr.suspend_grad():
                 return mlt.render(scene, seed=seed_value(seed), sensor=sensor, **settings).tensor
 
@@ -105,10 +105,6 @@ def _make_class(base: type) -> type:
 
     PSSMLTIntegrator.__doc__ = __doc__
     return PSSMLTIntegrator
-
-
-def mlt_sensor(scene, sensor):
-    return scene.sensors()[sensor] if isinstance(sensor, int) else sensor
 
 
 def register() -> None:

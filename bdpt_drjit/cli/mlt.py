@@ -23,16 +23,14 @@ _MLT_KEYS = ("mutations_per_pixel", "large_step_probability", "bootstrap_samples
 
 def _params(args, scene) -> dict:
     """The scene integrator's max_depth and rr_depth (or a pssmlt integrator's
-    settings), overridden by the options given."""
+    settings), overridden by the options given; mutations per pixel default to the
+    scene's sample count (mlt.py)."""
     defaults, _ = integrator_defaults(scene)
     out = {k: v for k, v in defaults.items() if k in _BDPT_KEYS + _MLT_KEYS}
     for key in _BDPT_KEYS + _MLT_KEYS:
         value = getattr(args, key, None)
         if value is not None:
             out[key] = value
-    if "mutations_per_pixel" not in out:
-        sensor = scene.sensors()[args.sensor]
-        out["mutations_per_pixel"] = sensor.sampler().sample_count()
     return out
 
 
