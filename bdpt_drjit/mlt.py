@@ -63,7 +63,8 @@ STORED_DEPTHS = 12
 # camera: film position, aperture, time, wavelength; light: emitter, position,
 # direction, lens sample of (1,1) (walk._light_start).
 PER_DEPTH, CAMERA_START, LIGHT_START = 6, 6, 7
-MLT_PARAMS = {"mutations_per_pixel": 0,           # 0: the sensor's sample count "large_step_probability": 0.3,
+# mutations_per_pixel 0: the sensor's sample count; chains 0: automatic.
+MLT_PARAMS = {"mutations_per_pixel": 0, "large_step_probability": 0.3,
               "bootstrap_samples": 100000, "chains": 0, "large_step_mis": True}
 BOOTSTRAP_LANES = 1 << 16       # lanes of a bootstrap batch (at least the chains)
 BDPT_PARAMS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
