@@ -37,9 +37,9 @@ def timed_bdpt(scene, seconds, seed, **settings):
     return _lum(res.image), res.time, res.spp
 
 
-def timed_mlt(scene, seconds, seed, mis=True):
+def timed_mlt(scene, seconds, seed, mis=True, chains=16384, bootstrap=100000):
     r = mlt.MLTRenderer(scene, seed=seed, max_depth=8, mutations_per_pixel=1 << 16,
-                        chains=16384, large_step_mis=mis)
+                        chains=chains, large_step_mis=mis, bootstrap_samples=bootstrap)
     while not r.done and r.time < seconds:
         r.run_iteration()
     res = r.result()
@@ -54,6 +54,9 @@ def main(argv=None):
     ap.add_argument("--ref-spp", type=int, default=4096)
     ap.add_argument("--gap-start", type=float, default=0.45)
     ap.add_argument("--no-mis", action="store_true", help="pssmlt without large-step MIS")
+    ap.add_argument("--chains", type=int, default=16384)
+    ap.add_argument("--bootstrap", type=int, default=100000)
+    ap.add_argument("--methods", default="pssmlt,bdpt (auto),bdpt (Veach)")
     args = ap.parse_args(argv)
     scene = mi.load_file("scenes/door-ajar.xml", resx=args.res, resy=args.res,
                          gap_start=args.gap_start)
@@ -70,10 +73,12 @@ def main(argv=None):
     eps = (0.01 * ref.mean()) ** 2
     print("reference: %d spp of bdpt in %.0f s, mean %.6g; its own relMSE ~ %.4g"
           % (args.ref_spp, time.perf_counter() - t0, ref.mean(), np.mean(ref_var / (ref ** 2 + eps))))
-    methods = {"pssmlt": lambda s: timed_mlt(scene, args.seconds, s, not args.no_mis),
+    methods = {"pssmlt": lambda s: timed_mlt(scene, args.seconds, s, not args.no_mis,
+                                             args.chains, args.bootstrap),
                "bdpt (auto)": lambda s: timed_bdpt(scene, args.seconds, s),
                "bdpt (Veach)": lambda s: timed_bdpt(scene, args.seconds, s, light_paths=1,
                                                     connections="all")}
+    methods = {m: go for m, go in methods.items() if m in args.methods.split(",")}
     errors = {m: [] for m in methods}
     mse = {m: [] for m in methods}
     for run in range(args.runs):
@@ -84,11 +89,12 @@ def main(argv=None):
             mse[name].append(float(np.mean((img - ref) ** 2) / ref.mean() ** 2))
             print("run %d %-13s %.1f s, %.0f spp/mpp, mean %.6g, relMSE %.4g, MSE/mean^2 %.4g"
                   % (run, name, seconds, spp, img.mean(), err, mse[name][-1]), flush=True)
-    base, base2 = np.mean(errors["bdpt (auto)"]), np.mean(mse["bdpt (auto)"])
+    first = next(iter(methods)) if "bdpt (auto)" not in methods else "bdpt (auto)"
+    base, base2 = np.mean(errors[first]), np.mean(mse[first])
     for name, e in errors.items():
-        print("%-13s relMSE %.4g +- %.2g (%d runs), %.2fx bdpt (auto); MSE/mean^2 %.4g, %.2fx"
+        print("%-13s relMSE %.4g +- %.2g (%d runs), %.2fx %s; MSE/mean^2 %.4g, %.2fx"
               % (name, np.mean(e), np.std(e, ddof=1) / np.sqrt(len(e)), len(e),
-                 np.mean(e) / base, np.mean(mse[name]), np.mean(mse[name]) / base2))
+                 np.mean(e) / base, first, np.mean(mse[name]), np.mean(mse[name]) / base2))
 
 
 if __name__ == "__main__":

@@ -33,8 +33,8 @@ sample and one light subpath).
    * - large_step_probability
      - Probability of a large step (Default: 0.3; Mitsuba 0.6: ``pLarge``)
    * - bootstrap_samples
-     - Independent samples that estimate b and seed the chains (Default: 100000;
-       Mitsuba 0.6: ``luminanceSamples``)
+     - Independent samples that estimate b and seed the chains; 0 = max(100000, 32 x
+       chains) (Default: 0; Mitsuba 0.6: ``luminanceSamples``)
    * - large_step_mis
      - Weight large-step proposals also as independent samples (Kelemen 2002's MIS)
        (Default: true)

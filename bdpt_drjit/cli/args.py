@@ -198,7 +198,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--large-step-probability", type=float, metavar="P",
                    help="probability of a large step (default 0.3)")
     t.add_argument("--bootstrap-samples", type=int_at_least(1), metavar="N",
-                   help="independent samples estimating b and seeding the chains (default 100000)")
+                   help="independent samples estimating b and seeding the chains (default 0: "
+                   "max(100000, 32 x chains))")
     t.add_argument("--no-large-step-mis", dest="large_step_mis", action="store_false",
                    default=None, help="weight large steps as chain states only (no "
                    "Kelemen MIS; the image's sum is then b N at every iteration)")

@@ -71,9 +71,9 @@ def run(args, stop) -> int:
     stop.check()
     if not args.quiet:
         eprint("bdpt: pssmlt %s: %d chains x %d iterations, bootstrap of %d samples in %s, "
-               "b = %.6g" % (path.name, renderer.chains, renderer.iterations,
-                             renderer.bootstrap_samples, fmt_time(renderer.bootstrap_time),
-                             renderer.b))
+               "b = %.6g, chains on %d distinct start states"
+               % (path.name, renderer.chains, renderer.iterations, renderer.bootstrap_samples,
+                  fmt_time(renderer.bootstrap_time), renderer.b, renderer.start_states))
     reason, last = None, 0.0
     while not renderer.done:
         renderer.run_iteration()
