@@ -37,7 +37,7 @@ def timed_bdpt(scene, seconds, seed, **settings):
     return _lum(res.image), res.time, res.spp
 
 
-def timed_mlt(scene, seconds, seed, mis=True, chains=16384, bootstrap=100000):
+def timed_mlt(scene, seconds, seed, mis=True, chains=16384, bootstrap=0):
     r = mlt.MLTRenderer(scene, seed=seed, max_depth=8, mutations_per_pixel=1 << 16,
                         chains=chains, large_step_mis=mis, bootstrap_samples=bootstrap)
     while not r.done and r.time < seconds:
@@ -55,7 +55,7 @@ def main(argv=None):
     ap.add_argument("--gap-start", type=float, default=0.45)
     ap.add_argument("--no-mis", action="store_true", help="pssmlt without large-step MIS")
     ap.add_argument("--chains", type=int, default=16384)
-    ap.add_argument("--bootstrap", type=int, default=100000)
+    ap.add_argument("--bootstrap", type=int, default=0, help="0: automatic (mlt.py)")
     ap.add_argument("--methods", default="pssmlt,bdpt (auto),bdpt (Veach)")
     args = ap.parse_args(argv)
     scene = mi.load_file("scenes/door-ajar.xml", resx=args.res, resy=args.res,

@@ -185,3 +185,22 @@ def test_homogeneous_fog_matches_bdpt():
     refs = [bdpt_drjit.render(scene, spp=32, seed=400 + s, max_depth=6, light_paths=1,
                               connections="all").image for s in range(6)]
     assert_statistically_equal(runs, refs, blocks=4, what="fog cube")
+
+
+@pytest.mark.parametrize("camera", ["thin lens, crop", "orthographic"])
+def test_other_cameras_match_bdpt(camera):
+    """A thin lens (aperture numbers in the camera stream) with a crop window (film
+    positions of the crop), and an orthographic camera (no light image: camera records
+    only)."""
+    from test_cameras import ORTHOGRAPHIC, cornell_thin_lens, with_sensor
+    if camera == "orthographic":
+        scene = with_sensor("cornell-box.xml", ORTHOGRAPHIC, 16)
+    else:
+        scene = cornell_thin_lens(0.5, res=20, film_xml=(
+            '<integer name="crop_offset_x" value="5"/><integer name="crop_offset_y" '
+            'value="3"/><integer name="crop_width" value="12"/><integer '
+            'name="crop_height" value="12"/>'))
+    runs = [_mlt(scene, seed, max_depth=6).image for seed in range(6)]
+    refs = [bdpt_drjit.render(scene, spp=32, seed=500 + s, max_depth=6, light_paths=1,
+                              connections="all").image for s in range(6)]
+    assert_statistically_equal(runs, refs, blocks=4, what=camera)
