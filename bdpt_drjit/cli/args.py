@@ -208,6 +208,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--max-depth", type=int_at_least(-1), help="longest path in edges (-1: unbounded)")
     t.add_argument("--rr-depth", type=int_at_least(1), help="vertex where Russian roulette starts")
     t.add_argument("--mis", choices=("power", "balance", "uniform"), help="MIS heuristic")
+    t.add_argument("--no-light-image", dest="light_image", action="store_false", default=None,
+                   help="leave out the t = 1 strategies (MIS renormalizes over the rest)")
+    t.add_argument("--hide-emitters", action="store_true", default=None,
+                   help="hide emitters seen directly by the camera")
     t.add_argument("--seed", type=int_at_least(0), default=0, help="random seed (default 0)")
     t.add_argument("--time", type=_positive_float, metavar="SECONDS",
                    help="time budget: stop after the iteration that crosses it")
