@@ -20,9 +20,12 @@ whatever the other's length).
   ``identity`` of key k has u_d = hash(k, identity, d), so a chosen bootstrap
   sample's vector is rebuilt exactly by ``hashed_vectors``.
 
-The sampler is loop state of the walks' ``dr.while_loop``: a dataclass whose one
-field, the per-lane counter ``dim`` (UInt32), Dr.Jit traverses and updates in place;
-the stored vector and keys are plain attributes, read by gathers inside the loop.
+The sampler is loop state of the walks' ``dr.while_loop``: a dataclass whose array
+field, the per-lane counter ``dim`` (UInt32), Dr.Jit traverses as loop state.  Dr.Jit
+rebuilds the dataclass inside the loop from its fields, so attributes set on an
+instance are lost there (seen: AttributeError in the body); the stored vector and
+keys travel in a plain Python object (``_Source``) in the other field, which Dr.Jit
+passes by reference, and are read by gathers inside the loop.
 """
 from __future__ import annotations
 
