@@ -12,7 +12,8 @@ from .render import Renderer, RenderResult
 
 def render(scene, spp: int | None = None, seed: int = 0, sensor=0,
            strategy_images: bool = False, cluster: str | None = None,
-           scene_params: dict | None = None, **settings) -> RenderResult:
+           scene_params: dict | None = None, integrator: str = "bdpt",
+           **settings) -> RenderResult:
     """Render ``scene`` (a ``mi.Scene`` or a path to an XML file) with BDPT.
 
     Keyword settings: see ``bdpt_drjit.settings.PARAMS`` (max_depth, rr_depth, mis,
@@ -22,7 +23,15 @@ def render(scene, spp: int | None = None, seed: int = 0, sensor=0,
     to ``image``.  ``scene_params``: the XML file's parameters ($name).
     ``cluster``: render the passes on Ray workers (``"local:N"``, ``"auto"`` or a Ray
     address; ``scene`` must then be a file path): the same estimator (cluster.py).
+    ``integrator="pssmlt"``: Metropolis light transport over BDPT samples (mlt.py);
+    ``spp`` is then the mean mutations per pixel, and its own settings are
+    ``mlt.MLT_PARAMS`` with max_depth, rr_depth, mis, light_image, hide_emitters.
     """
+    if integrator not in ("bdpt", "pssmlt", "mlt"):
+        raise ValueError("bdpt: unknown integrator %r (bdpt or pssmlt)" % (integrator,))
+    if integrator != "bdpt" and (cluster is not None or strategy_images):
+        raise ValueError("pssmlt: cluster rendering and strategy images are not supported "
+                         "(a chain's records mix every strategy)")
     if cluster is not None:
         from .cluster import render_on_cluster
         return render_on_cluster(scene, cluster, spp=spp, seed=seed, sensor=sensor,
@@ -32,6 +41,11 @@ def render(scene, spp: int | None = None, seed: int = 0, sensor=0,
         scene = mi.load_file(str(scene), **(scene_params or {}))
     elif scene_params:
         raise ValueError("bdpt: scene_params apply to a scene file, not to a loaded mi.Scene")
+    if integrator != "bdpt":
+        from . import mlt
+        if spp:
+            settings["mutations_per_pixel"] = spp
+        return mlt.render(scene, seed=seed, sensor=sensor, **settings)
     r = Renderer(scene, sensor=sensor, spp=spp, seed=seed, strategy_images=strategy_images,
                  **settings)
     while not r.done:

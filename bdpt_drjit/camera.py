@@ -132,6 +132,25 @@ class CameraModel:
                           origin=self.origin(ray, aperture), pdf_w=self.direction_pdf_w(ray.d))
 
 
+    def sample_film_rays(self, sampler, lanes: int) -> CameraRays:
+        """One primary ray per lane at a film position drawn uniformly over the crop
+        window from the sampler's first two numbers (Metropolis light transport: the
+        pixel is a coordinate of the primary sample, mlt.py).  ``pos`` is in pixels of
+        the crop window, as the light image's splats' positions are."""
+        sensor = self.sensor
+        pos = sampler.next_2d() * self.resolution
+        aperture = sampler.next_2d() if sensor.needs_aperture_sample() else mi.Point2f(0.0)
+        time = mi.Float(sensor.shutter_open())
+        if sensor.shutter_open_time() > 0:
+            time += sampler.next_1d() * sensor.shutter_open_time()
+        wavelength_sample = sampler.next_1d() if mi.is_spectral else mi.Float(0.0)
+        ray, weight = sensor.sample_ray_differential(
+            time, wavelength_sample, pos / self.resolution, aperture)
+        return CameraRays(ray=ray, weight=weight, pos=mi.Vector2f(pos),
+                          pixel=self.pixel_index(pos), origin=self.origin(ray, aperture),
+                          pdf_w=self.direction_pdf_w(ray.d))
+
+
 class Camera(CameraModel):
     """A ``perspective`` (pinhole) or ``thinlens`` sensor, from its parameters (opaque).
 

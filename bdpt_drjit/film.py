@@ -93,6 +93,16 @@ class FilmAccumulator:
             mine = active & (layer_of(splats.s) == dr.opaque(mi.Int32, index))
             block.put(pos, wl, value, 0.0, 0.0, mine)
 
+    def put_light(self, pos, value, active=True):
+        """Values at film positions (crop-window pixels) on the light block, with no
+        normalization but ``develop_light``'s (Metropolis light transport, mlt.py)."""
+        pos = pos + mi.Vector2f(self.light.offset())
+        self.light.put(pos, mi.Color0f(), value, 0.0, 0.0, active)
+
+    def develop_light(self, scale) -> mi.TensorXf:
+        """The light block alone, times ``scale``."""
+        return self._develop(self.light) * dr.opaque(mi.Float, scale)
+
     # -- raw sums (cluster rendering) ------------------------------------------------------
     def _raw_blocks(self) -> dict:
         """The blocks by their key in ``raw()``."""

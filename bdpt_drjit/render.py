@@ -201,6 +201,8 @@ def _splat_moments(ctx, store):
     if stride > 1:
         chosen = dr.gather(mi.UInt32, s.items.lane, index) % dr.opaque(mi.UInt32, stride) == 0
         index = dr.compress(chosen)
+        if dr.width(index) == 0:        # splats, but none of a chosen light subpath
+            return None
     items = gather(s.items, index)
     value = luminance(items.value)
     samples = MomentSample(pixel=ctx.camera.pixel_index(items.pos), f2=dr.square(value),

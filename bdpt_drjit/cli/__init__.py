@@ -4,6 +4,7 @@
                 [--checkpoint SECONDS] [--res WxH] [-D key=value ...] [--sensor N]
                 [--variant llvm_ad_rgb] [renderer settings] [--strategy-images] [--quiet]
                 [--cluster local:N|auto|ray://HOST:PORT]
+    bdpt mlt [SCENE.xml] [-o out.exr] [--spp MUTATIONS] [--time SECONDS] [pssmlt options]
     bdpt merge a.exr b.exr ... -o out.exr
     bdpt info [SCENE.xml] [-D key=value ...] [--sensor N]
     bdpt info IMAGE.exr
@@ -30,7 +31,7 @@ options, an unwritable output, no usable LLVM) are reported as one line on
 stderr with a non-zero exit status; set ``BDPT_DEBUG=1`` for a traceback.
 
 Modules: ``args`` (the parser), ``scene`` (variant, scene, renderer), one module
-per command (``render``, ``merge``, ``info``), ``images`` (EXR/PNG output),
+per command (``render``, ``mlt``, ``merge``, ``info``), ``images`` (EXR/PNG output),
 ``progress`` (progress bar, stop requests), ``errors`` (one-line reports).
 """
 from __future__ import annotations

@@ -12,7 +12,7 @@ from ..settings import PARAMS, Param
 from .errors import CLIError, eprint
 
 PROG = "bdpt"
-COMMANDS = ("render", "merge", "info", "calibrate")
+COMMANDS = ("render", "mlt", "merge", "info", "calibrate")
 # Old spellings that still work, with a warning: the names were overloaded.
 RENAMED_OPTIONS = {"--strategy-set": "--strategy-subset", "--strategies": "--strategy-images"}
 
@@ -184,6 +184,40 @@ def build_parser() -> argparse.ArgumentParser:
     add_scene_options(r)
     add_renderer_options(r)
 
+    t = sub.add_parser("mlt", help="render a scene with Metropolis light transport (pssmlt)",
+                       description="Render a Mitsuba XML scene with primary sample space "
+                       "MLT over BDPT samples (thousands of Markov chains as lanes). Writes "
+                       "OUT.exr and OUT.png. --time or Ctrl-C stop after the current "
+                       "iteration and write the image of the iterations done.")
+    t.add_argument("scene", nargs="?", help="scene XML file (default: the Cornell box in scenes/)")
+    t.add_argument("-o", "--output", metavar="OUT.exr",
+                   help="output EXR (default: <scene name>.exr in the current directory)")
+    t.add_argument("--mutations-per-pixel", "--spp", dest="mutations_per_pixel",
+                   type=int_at_least(1), help="mean mutations per pixel (default: the "
+                   "scene's sample count)")
+    t.add_argument("--large-step-probability", type=float, metavar="P",
+                   help="probability of a large step (default 0.3)")
+    t.add_argument("--bootstrap-samples", type=int_at_least(1), metavar="N",
+                   help="independent samples estimating b and seeding the chains (default 0: "
+                   "max(100000, 32 x chains))")
+    t.add_argument("--no-large-step-mis", dest="large_step_mis", action="store_false",
+                   default=None, help="weight large steps as chain states only (no "
+                   "Kelemen MIS; the image's sum is then b N at every iteration)")
+    t.add_argument("--chains", type=int_at_least(0), metavar="N",
+                   help="Markov chains (default 0: min(65536, max(4096, mutations / 64)))")
+    t.add_argument("--max-depth", type=int_at_least(-1), help="longest path in edges (-1: unbounded)")
+    t.add_argument("--rr-depth", type=int_at_least(1), help="vertex where Russian roulette starts")
+    t.add_argument("--mis", choices=("power", "balance", "uniform"), help="MIS heuristic")
+    t.add_argument("--no-light-image", dest="light_image", action="store_false", default=None,
+                   help="leave out the t = 1 strategies (MIS renormalizes over the rest)")
+    t.add_argument("--hide-emitters", action="store_true", default=None,
+                   help="hide emitters seen directly by the camera")
+    t.add_argument("--seed", type=int_at_least(0), default=0, help="random seed (default 0)")
+    t.add_argument("--time", type=_positive_float, metavar="SECONDS",
+                   help="time budget: stop after the iteration that crosses it")
+    t.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    add_scene_options(t)
+
     m = sub.add_parser("merge", help="combine renders made with different seeds",
                        description="Average EXR renders of the same scene made with "
                        "different seeds, weighted by their spp (from the header).")
@@ -223,5 +257,5 @@ def parse_args(argv):
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help(sys.stderr)
-        raise CLIError("no command given (render, merge, info or calibrate)", 2)
+        raise CLIError("no command given (render, mlt, merge, info or calibrate)", 2)
     return args

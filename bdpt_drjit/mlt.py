@@ -1,0 +1,401 @@
+"""Primary sample space Metropolis light transport (PSSMLT) over the wavefront BDPT:
+thousands of Markov chains, one per lane.
+
+    bootstrap        B independent BDPT samples (hashed primary samples, pss.py):
+                     b = mean f, the image's normalization; chains start at
+                     samples drawn in proportion to f (resampling)
+    each iteration   propose y for every chain (large step with probability
+                     p_large, else Kelemen small steps: pss.propose)
+                     evaluate y: camera ray, light subpath, camera subpath with every
+                     (s,t) strategy and its MIS weight: records (camera value, splats)
+                     accept with a = min(1, f(y)/f(x)) per lane (masks)
+                     splat y's records times a/f(y), x's times (1-a)/f(x) (Veach's
+                     expected values, 1997 sec. 11.3.3)
+
+The path sample of a primary sample u is a full BDPT sample (Mitsuba 0.6's
+``pssmlt`` with its bidirectional option): the camera ray through the film position
+u_0,u_1, the light subpath from the light stream, and every strategy of the pair with
+its MIS weight.  Its records are the camera value at its film position and each
+light-image splat at its own; the target is f(u) = Y(camera value) + sum of Y(splat
+values) (Y the mean of the colour channels, optimizer.luminance).  With I_j the
+image of pixel j and N the film's pixels, I_j = N E_u[sum of records in j], and
+E_u[g] = b E_pi[g / f] with b = E_u[f] (Veach 1997, eq. 11.8; Kelemen 2002, eq. 9),
+so each record is splatted times b N / (chains x iterations) over its state's f.
+Every iteration adds weights a + (1 - a) = 1 per chain: the image's luminance sum is
+b N at every iteration, the bootstrap's estimate.  With ``large_step_mis`` (the
+default) large-step proposals also count as independent samples, weighted with the
+chain's states by the balance heuristic (Kelemen 2002, sec. 4; pss.py): dark regions
+get their noise from the large steps' rate instead of from rare chain visits, and the
+sum is b N in expectation only.
+
+Chain state stays in Dr.Jit arrays (``Chains``): the two streams' vectors, f(x), the
+camera record and the current state's splats (a list compacted each iteration).
+Every per-iteration value (keys, the large-step probability) is opaque: an iteration
+compiles nothing after the first (tests/test_mlt.py).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from . import camera as camera_stage
+from . import pss, support
+from .budgets import BDPT
+from .emitters import Emitters
+from .film import FilmAccumulator
+from .media import Media
+from .mis import Weights
+from .optimizer import luminance
+from .render import PassContext, RenderResult, _mix_seed, check_variant
+from .settings import Settings
+from .strategies import StrategySet
+from .vertices import LightVertexStore, gather
+from .walk import trace_camera_subpaths, trace_light_subpaths
+
+# Depths whose numbers a chain stores (the dimension budget); deeper vertices draw
+# fresh numbers each evaluation (pss.py).
+STORED_DEPTHS = 12
+# Numbers per depth of a walk (walk.DepthSamples), and before the first depth:
+# camera: film position, aperture, time, wavelength; light: emitter, position,
+# direction, lens sample of (1,1) (walk._light_start).
+PER_DEPTH, CAMERA_START, LIGHT_START = 6, 6, 7
+# mutations_per_pixel 0: the sensor's sample count; chains and bootstrap_samples 0:
+# automatic.
+MLT_PARAMS = {"mutations_per_pixel": 0, "large_step_probability": 0.3,
+              "bootstrap_samples": 0, "chains": 0, "large_step_mis": True}
+# Automatic bootstrap: at least this many samples per chain.  Chains drawn from too few
+# start on the same states and stay correlated where f is heavy-tailed: door-ajar.xml
+# with a 0.01 gap (1.3% of samples nonzero), 16384 chains from 100000 samples started
+# on 1225 distinct states; at equal time (15 s, 64x64) relMSE 2.5 against 0.80 from
+# 400000 samples.
+BOOTSTRAP_PER_CHAIN = 32
+BOOTSTRAP_LANES = 1 << 16       # lanes of a bootstrap batch (at least the chains)
+BDPT_PARAMS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
+
+
+@dataclass
+class Records:
+    """Image records of path samples: film position (crop pixels), value, chain."""
+    pos: mi.Vector2f
+    value: mi.Spectrum
+    lane: mi.UInt32
+
+
+@dataclass
+class Evaluation:
+    f: mi.Float          # the target of each lane's sample
+    camera: Records      # one per lane
+    splats: Records      # the light image's records
+    rays: int
+
+
+def _concat(a: Records, b: Records) -> Records:
+    na, nb = dr.width(a.lane), dr.width(b.lane)
+    out = Records(pos=dr.empty(mi.Vector2f, na + nb), value=dr.empty(mi.Spectrum, na + nb),
+                  lane=dr.empty(mi.UInt32, na + nb))
+    for part, offset in ((a, 0), (b, na)):
+        if dr.width(part.lane):
+            idx = dr.arange(mi.UInt32, dr.width(part.lane)) + dr.opaque(mi.UInt32, offset)
+            dr.scatter(out.pos, part.pos, idx)
+            dr.scatter(out.value, part.value, idx)
+            dr.scatter(out.lane, part.lane, idx)
+    return out
+
+
+def _select_records(records: Records, keep: mi.Bool) -> Records:
+    """The records where ``keep`` (compacted)."""
+    if not dr.width(records.lane):
+        return records
+    idx = dr.compress(keep)
+    return gather(records, idx) if dr.width(idx) else Records(
+        pos=dr.zeros(mi.Vector2f, 0), value=dr.zeros(mi.Spectrum, 0), lane=dr.zeros(mi.UInt32, 0))
+
+
+@dataclass
+class Chains:
+    """Every chain's current state x: its two primary sample vectors (chains x D), f(x)
+    and its records."""
+    camera_u: mi.Float
+    light_u: mi.Float
+    f: mi.Float
+    camera: Records
+    splats: Records
+
+    def accept(self, accepted: mi.Bool, camera_u, light_u, ev: Evaluation, dims) -> None:
+        """x <- y where ``accepted`` (per chain; masks, no per-lane branches)."""
+        for name, y, d in (("camera_u", camera_u, dims[0]), ("light_u", light_u, dims[1])):
+            element = dr.arange(mi.UInt32, dr.width(y))
+            take = dr.gather(mi.Bool, accepted, element // dr.opaque(mi.UInt32, d))
+            setattr(self, name, dr.select(take, y, getattr(self, name)))
+        self.f = dr.select(accepted, ev.f, self.f)
+        self.camera = Records(pos=dr.select(accepted, ev.camera.pos, self.camera.pos),
+                              value=dr.select(accepted, ev.camera.value, self.camera.value),
+                              lane=self.camera.lane)
+        kept = _select_records(self.splats, ~dr.gather(mi.Bool, accepted, self.splats.lane))
+        taken = _select_records(ev.splats, dr.gather(mi.Bool, accepted, ev.splats.lane))
+        self.splats = _concat(kept, taken)
+        dr.eval(self.camera_u, self.light_u, self.f, self.camera, self.splats)
+
+
+def mlt_settings(values: dict) -> tuple[dict, dict]:
+    """(MLT parameters, BDPT settings) from keyword values; refuses the BDPT
+    parameters that have no meaning for a chain's sample (budgets, techniques)."""
+    mlt, bdpt = dict(MLT_PARAMS), {}
+    for key, value in values.items():
+        if key in MLT_PARAMS and isinstance(MLT_PARAMS[key], bool) and isinstance(value, str):
+            if value.lower() not in ("true", "false", "1", "0"):
+                raise ValueError("pssmlt: %s must be true or false, got %r" % (key, value))
+            mlt[key] = value.lower() in ("true", "1")
+        elif key in MLT_PARAMS:
+            mlt[key] = type(MLT_PARAMS[key])(value)
+        elif key in ("maxDepth", "rrDepth", "hideEmitters", "lightImage") or key in BDPT_PARAMS:
+            bdpt[key] = value
+        else:
+            raise ValueError("pssmlt: unknown or unsupported parameter '%s' (known: %s)"
+                             % (key, ", ".join(list(MLT_PARAMS) + list(BDPT_PARAMS))))
+    if min(mlt["mutations_per_pixel"], mlt["bootstrap_samples"], mlt["chains"]) < 0:
+        raise ValueError("pssmlt: mutations_per_pixel, bootstrap_samples and chains must be "
+                         ">= 0 (0: the sample count; automatic)")
+    if not 0.0 <= mlt["large_step_probability"] <= 1.0:
+        raise ValueError("pssmlt: large_step_probability must lie in [0, 1], got %g"
+                         % mlt["large_step_probability"])
+    return mlt, bdpt
+
+
+def _refuse(scene: mi.Scene, media: Media, settings: Settings) -> None:
+    """What PSSMLT cannot render here, refused before anything is rendered."""
+    if mi.is_spectral or mi.is_monochromatic:
+        raise RuntimeError("pssmlt: RGB variants only (got %s): a chain's records carry no "
+                           "wavelengths" % mi.variant())
+    if settings.mis == "lafortune":
+        raise ValueError("pssmlt: mis='lafortune' is refused: its weights have no light "
+                         "image, use power or balance")
+    if media.present and any(not m.is_homogeneous() for m in media.all):
+        raise support.UnsupportedPluginError(
+            "pssmlt: heterogeneous media are refused: ratio tracking's transmittance is "
+            "keyed per pass, not by the primary sample, so f(u) would not be a function "
+            "of u; render them with bdpt")
+
+
+class MLTRenderer:
+    """PSSMLT of one sensor (see the module): ``bootstrap`` happens on construction,
+    then call ``run_iteration`` until ``done``; ``result()`` develops the image."""
+
+    def __init__(self, scene: mi.Scene, sensor=0, seed: int = 0, **params):
+        check_variant()
+        mlt, bdpt = mlt_settings(params)
+        self.sensor = camera_stage.select_sensor(scene, sensor)
+        self.camera = camera_stage.make_camera(self.sensor)
+        self.scene, self.seed = scene, int(seed)
+        self.settings = Settings.from_dict({**bdpt, "light_paths": 1, "connections": "all"})
+        support.check(scene, self.sensor)
+        self.emitters = Emitters(scene)
+        self.media = Media(scene, self.sensor)
+        _refuse(scene, self.media, self.settings)
+        self.strategies = StrategySet(self.settings, self.emitters.count > 0, BDPT,
+                                      self.camera.light_image_possible)
+        self.weights = Weights(self.settings.mis, self.strategies)
+        self.weights.set_rates(1.0, 1.0)
+        film = self.sensor.film()
+        self.pixels = int(dr.prod(film.crop_size()))
+        self.film = FilmAccumulator(film, coalesce=False)
+        self.p_large = mlt["large_step_probability"]
+        self.large_step_mis = mlt["large_step_mis"]
+        mpp = mlt["mutations_per_pixel"] or self.sensor.sampler().sample_count()
+        self.mutations = mpp * self.pixels
+        # Automatic: chains of at least 64 mutations, 4096 to 65536 of them (fewer
+        # lanes cost more per mutation: 16.7 against 7.8 us at 4096 and 16384 chains,
+        # door-ajar.xml 64x64 on 2 loaded cores; longer chains exploit more).
+        self.chains = min(mlt["chains"] or min(1 << 16, max(4096, self.mutations // 64)),
+                          self.mutations)
+        self.iterations = max(1, round(self.mutations / self.chains))
+        self.bootstrap_samples = (mlt["bootstrap_samples"]
+                                  or max(100000, BOOTSTRAP_PER_CHAIN * self.chains))
+        depths = STORED_DEPTHS if self.settings.max_depth < 0 else min(
+            self.settings.max_depth, STORED_DEPTHS)
+        self.dims = (CAMERA_START + PER_DEPTH * depths, LIGHT_START + PER_DEPTH * depths)
+        self._capacity = [4, 5]          # pool records per light subpath, raised on overflow
+        self.iterations_done, self.time, self.rays = 0, 0.0, 0
+        self.acceptance = []             # mean acceptance per iteration
+        self.start_states = 0            # distinct bootstrap samples the chains start on
+        start = time.perf_counter()
+        self.b, self.state = self.bootstrap()
+        self.bootstrap_time = time.perf_counter() - start
+        self.time += self.bootstrap_time
+
+    def _key(self, *values) -> mi.UInt32:
+        return dr.opaque(mi.UInt32, _mix_seed(self.seed, *values))
+
+    @property
+    def done(self) -> bool:
+        return self.iterations_done >= self.iterations
+
+    # -- one evaluation: a BDPT sample per lane --------------------------------------
+    def _context(self, rays, camera_sampler, light_sampler, lanes: int, key) -> PassContext:
+        return PassContext(
+            scene=self.scene, camera=self.camera, settings=self.settings,
+            strategies=self.strategies, weights=self.weights, emitters=self.emitters,
+            media=self.media, camera_sampler=camera_sampler, light_sampler=light_sampler,
+            budget=BDPT, lane=dr.arange(mi.UInt32, lanes), time=rays.ray.time,
+            wavelengths=rays.ray.wavelengths, camera_weight=rays.weight, light_count=lanes,
+            pick_offset=dr.opaque(mi.Float, 0.0), noise_key=key, pixel=rays.pixel,
+            connection_scale=dr.opaque(mi.Float, 1.0))
+
+    def evaluate(self, lanes: int, samplers) -> Evaluation:
+        """The BDPT sample of each lane's primary samples: ``samplers()`` makes a
+        fresh (camera, light) pair (a light walk whose pools overflowed runs again on
+        the same numbers)."""
+        camera_sampler, light_sampler = samplers()
+        rays = self.camera.sample_film_rays(camera_sampler, lanes)
+        dr.eval(rays)
+        ctx = self._context(rays, camera_sampler, light_sampler, lanes, self._key(0x4E01))
+        while True:
+            store = LightVertexStore(lanes, lanes * self._capacity[0], lanes * self._capacity[1])
+            light_rays = trace_light_subpaths(ctx, store)
+            dr.eval(light_rays, store.vertices.items, store.splats.items, store.first)
+            if not store.overflowed():
+                break
+            self._capacity[0] = max(self._capacity[0], -(-store.vertices.size() * 5 // (4 * lanes)))
+            self._capacity[1] = max(self._capacity[1], -(-store.splats.size() * 5 // (4 * lanes)))
+            ctx.light_sampler = samplers()[1]
+        ctx.stored = dr.opaque(mi.UInt32, max(store.vertices.size(), 1))
+        cam = trace_camera_subpaths(ctx, rays, store)
+        dr.eval(cam.radiance, cam.rays)
+        count = min(store.splats.size(), store.splats.capacity)
+        if count:
+            s = gather(store.splats.items, dr.arange(mi.UInt32, count))
+            splats = Records(pos=mi.Vector2f(s.pos), value=mi.Spectrum(s.value), lane=s.lane)
+        else:
+            splats = Records(pos=dr.zeros(mi.Vector2f, 0), value=dr.zeros(mi.Spectrum, 0),
+                             lane=dr.zeros(mi.UInt32, 0))
+        f = luminance(cam.radiance)
+        if count:
+            dr.scatter_add(f, luminance(splats.value), splats.lane)
+        camera = Records(pos=rays.pos, value=mi.Spectrum(cam.radiance),
+                         lane=dr.arange(mi.UInt32, lanes))
+        totals = dr.sum(cam.rays) + dr.sum(light_rays)
+        dr.eval(f, camera, splats, totals)
+        return Evaluation(f=f, camera=camera, splats=splats, rays=int(totals[0]))
+
+    # -- start-up ---------------------------------------------------------------------
+    def bootstrap(self):
+        """b = the mean of f over ``bootstrap_samples`` independent samples (hashed
+        primary samples, in batches of BOOTSTRAP_LANES lanes), and the chains' first states:
+        bootstrap samples drawn in proportion to f (stratified resampling), rebuilt
+        from their keys (pss.hashed_vectors), so that the chains start in the target
+        distribution and the image's mean is b from the first iteration (Veach 1997,
+        sec. 11.3.1's start-up bias)."""
+        if self.emitters.count == 0:            # black (support.check warned)
+            return 0.0, None
+        keys = self._key(0xB0, 0), self._key(0xB0, 1)
+        f_all = []
+        batch = max(self.chains, BOOTSTRAP_LANES)
+        for start in range(0, self.bootstrap_samples, batch):
+            n = min(batch, self.bootstrap_samples - start)
+            ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, start)
+            ev = self.evaluate(n, lambda: (pss.PSSSampler.make(n, keys[0], ident),
+                                           pss.PSSSampler.make(n, keys[1], ident)))
+            self.rays += ev.rays
+            f_all.append(ev.f.numpy())
+        f_np = np.concatenate(f_all).astype(np.float64)
+        f_np[~np.isfinite(f_np)] = 0.0
+        b = float(f_np.mean())
+        if b <= 0.0:
+            return 0.0, None
+        dist = mi.DiscreteDistribution(mi.Float(f_np.astype(np.float32)))
+        chain = dr.arange(mi.UInt32, self.chains)
+        u = (mi.Float(chain) + pss.hash_uniform(self._key(0xB1), chain, 0)) / self.chains
+        pick = dist.sample(dr.minimum(u, 0.99999994))
+        self.start_states = len(np.unique(pick.numpy()))
+        camera_u = pss.hashed_vectors(keys[0], pick, self.dims[0])
+        light_u = pss.hashed_vectors(keys[1], pick, self.dims[1])
+        dr.eval(camera_u, light_u)
+        ev = self.evaluate(self.chains, lambda: (
+            pss.PSSSampler.make(self.chains, keys[0], pick, camera_u, self.dims[0]),
+            pss.PSSSampler.make(self.chains, keys[1], pick, light_u, self.dims[1])))
+        self.rays += ev.rays
+        return b, Chains(camera_u=camera_u, light_u=light_u, f=ev.f, camera=ev.camera,
+                         splats=ev.splats)
+
+    # -- the chains ---------------------------------------------------------------------
+    def run_iteration(self) -> None:
+        """One mutation of every chain: propose, evaluate, splat both states by their
+        expected values, accept or reject (Veach 1997, fig. 11.3; Kelemen 2002, sec. 4)."""
+        if self.done:
+            return
+        start = time.perf_counter()
+        with dr.suspend_grad():
+            if self.state is not None:
+                self._iterate(self.iterations_done)
+            dr.sync_thread()
+        self.iterations_done += 1
+        self.time += time.perf_counter() - start
+
+    def _iterate(self, i: int) -> None:
+        x, n, dims = self.state, self.chains, self.dims
+        chain = dr.arange(mi.UInt32, n)
+        step_key = self._key(0x17, i)
+        large = pss.hash_uniform(step_key, chain, 0) < dr.opaque(mi.Float, self.p_large)
+        camera_u = pss.propose(x.camera_u, dims[0], large, self._key(0x17, i, 0))
+        light_u = pss.propose(x.light_u, dims[1], large, self._key(0x17, i, 1))
+        dr.eval(camera_u, light_u)
+        tails = self._key(0x7A, i, 0), self._key(0x7A, i, 1)
+        ev = self.evaluate(n, lambda: (pss.PSSSampler.make(n, tails[0], chain, camera_u, dims[0]),
+                                       pss.PSSSampler.make(n, tails[1], chain, light_u, dims[1])))
+        self.rays += ev.rays
+        a = pss.acceptance(x.f, ev.f)
+        p_mis = self.p_large if self.large_step_mis else 0.0
+        wy, wx = pss.expected_value_weights(x.f, ev.f, a, dr.opaque(mi.Float, self.b), large,
+                                            dr.opaque(mi.Float, p_mis))
+        for records, w in ((ev.camera, wy), (ev.splats, wy), (x.camera, wx), (x.splats, wx)):
+            self._put(records, w)
+        accepted = pss.hash_uniform(step_key, chain, 1) < a
+        mean_a = dr.mean(a)
+        x.accept(accepted, camera_u, light_u, ev, dims)
+        self.acceptance.append(float(mean_a[0]))
+
+    def _put(self, records: Records, w: mi.Float) -> None:
+        """Records on the film, each times its chain's weight (the film's scale is
+        applied once, in ``tensor``)."""
+        if not dr.width(records.lane):
+            return
+        weight = dr.gather(mi.Float, w, records.lane)
+        self.film.put_light(records.pos, records.value * weight, weight > 0.0)
+
+    # -- results ------------------------------------------------------------------------
+    def tensor(self) -> mi.TensorXf:
+        """The image so far: the film's weighted records times N / (chains x
+        iterations)."""
+        samples = max(self.chains * self.iterations_done, 1)
+        return self.film.develop_light(self.pixels / samples)
+
+    def result(self) -> RenderResult:
+        tensor = self.tensor()
+        mpp = self.chains * self.iterations_done / self.pixels
+        return RenderResult(image=tensor.numpy(), tensor=tensor, spp=int(mpp + 1e-9),
+                            passes=self.iterations_done, time=self.time, rays=self.rays,
+                            stats={"pixels": self.pixels, "integrator": "pssmlt",
+                                   "b": self.b, "chains": self.chains,
+                                   "iterations": self.iterations_done,
+                                   "mutations_per_pixel": mpp,
+                                   "large_step_probability": self.p_large,
+                                   "large_step_mis": self.large_step_mis,
+                                   "bootstrap_samples": self.bootstrap_samples,
+                                   "bootstrap_time": self.bootstrap_time,
+                                   "start_states": self.start_states,
+                                   "acceptance": float(np.mean(self.acceptance))
+                                   if self.acceptance else 0.0,
+                                   "budget": "pssmlt", "decision": "pssmlt (BDPT samples)"})
+
+
+def render(scene, seed: int = 0, sensor=0, **params) -> RenderResult:
+    """Render ``scene`` with PSSMLT (``params``: MLT_PARAMS and max_depth, rr_depth,
+    mis, light_image, hide_emitters)."""
+    r = MLTRenderer(scene, sensor=sensor, seed=seed, **params)
+    while not r.done:
+        r.run_iteration()
+    return r.result()

@@ -1,0 +1,101 @@
+"""PSSMLT against BDPT at equal time on scenes/door-ajar.xml (issue 31).
+
+    python -m benchmarks.mlt_door [--seconds 15] [--runs 4] [--res 64] [--ref-spp 4096]
+
+Each round renders every method once for ``--seconds`` (interleaved, so that the
+machine's load falls on all alike): ``pssmlt`` (its bootstrap included in its time),
+the default ``bdpt`` (auto budget, its pilot included) and Veach's BDPT
+(light_paths=1 connections=all); each stops after the pass or iteration that crosses
+the time, with an image normalized for what it did.  The reference is the mean of 8
+BDPT renders (``--ref-spp`` in all); its own noise is estimated from their spread and
+reported.  relMSE = mean over pixels of (I - R)^2 / (R^2 + eps), on the luminance,
+eps = (0.01 mean R)^2; MSE/mean^2 = mean of (I - R)^2 over the square of R's mean
+(bright and dark pixels alike).  The reference is cached in /tmp by its parameters."""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+import bdpt_drjit  # noqa: F401
+import mitsuba as mi
+from bdpt_drjit import mlt
+from bdpt_drjit.render import Renderer
+
+
+def _lum(img):
+    return img[..., :3].mean(axis=-1)
+
+
+def timed_bdpt(scene, seconds, seed, **settings):
+    r = Renderer(scene, spp=1 << 16, seed=seed, max_depth=8, samples_per_pass=4, **settings)
+    while not r.done and not (r.time >= seconds and r.at_round_end):
+        r.run_pass()
+    res = r.result()
+    return _lum(res.image), res.time, res.spp
+
+
+def timed_mlt(scene, seconds, seed, mis=True, chains=16384, bootstrap=0):
+    r = mlt.MLTRenderer(scene, seed=seed, max_depth=8, mutations_per_pixel=1 << 16,
+                        chains=chains, large_step_mis=mis, bootstrap_samples=bootstrap)
+    while not r.done and r.time < seconds:
+        r.run_iteration()
+    res = r.result()
+    return _lum(res.image), res.time, res.stats["mutations_per_pixel"]
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seconds", type=float, default=15.0)
+    ap.add_argument("--runs", type=int, default=4)
+    ap.add_argument("--res", type=int, default=64)
+    ap.add_argument("--ref-spp", type=int, default=4096)
+    ap.add_argument("--gap-start", type=float, default=0.45)
+    ap.add_argument("--no-mis", action="store_true", help="pssmlt without large-step MIS")
+    ap.add_argument("--chains", type=int, default=16384)
+    ap.add_argument("--bootstrap", type=int, default=0, help="0: automatic (mlt.py)")
+    ap.add_argument("--methods", default="pssmlt,bdpt (auto),bdpt (Veach)")
+    args = ap.parse_args(argv)
+    scene = mi.load_file("scenes/door-ajar.xml", resx=args.res, resy=args.res,
+                         gap_start=args.gap_start)
+    t0 = time.perf_counter()
+    cache = Path("/tmp/mlt_door_ref_%d_%d_%g.npy" % (args.res, args.ref_spp, args.gap_start))
+    if cache.exists():
+        refs = list(np.load(cache))
+    else:
+        refs = [_lum(bdpt_drjit.render(scene, spp=args.ref_spp // 8, seed=1000 + k,
+                                       max_depth=8).image) for k in range(8)]
+        np.save(cache, np.array(refs))
+    ref = np.mean(refs, axis=0)
+    ref_var = np.var(refs, axis=0, ddof=1) / 8
+    eps = (0.01 * ref.mean()) ** 2
+    print("reference: %d spp of bdpt in %.0f s, mean %.6g; its own relMSE ~ %.4g"
+          % (args.ref_spp, time.perf_counter() - t0, ref.mean(), np.mean(ref_var / (ref ** 2 + eps))))
+    methods = {"pssmlt": lambda s: timed_mlt(scene, args.seconds, s, not args.no_mis,
+                                             args.chains, args.bootstrap),
+               "bdpt (auto)": lambda s: timed_bdpt(scene, args.seconds, s),
+               "bdpt (Veach)": lambda s: timed_bdpt(scene, args.seconds, s, light_paths=1,
+                                                    connections="all")}
+    methods = {m: go for m, go in methods.items() if m in args.methods.split(",")}
+    errors = {m: [] for m in methods}
+    mse = {m: [] for m in methods}
+    for run in range(args.runs):
+        for name, go in methods.items():
+            img, seconds, spp = go(run + 1)
+            err = float(np.mean((img - ref) ** 2 / (ref ** 2 + eps)))
+            errors[name].append(err)
+            mse[name].append(float(np.mean((img - ref) ** 2) / ref.mean() ** 2))
+            print("run %d %-13s %.1f s, %.0f spp/mpp, mean %.6g, relMSE %.4g, MSE/mean^2 %.4g"
+                  % (run, name, seconds, spp, img.mean(), err, mse[name][-1]), flush=True)
+    first = next(iter(methods)) if "bdpt (auto)" not in methods else "bdpt (auto)"
+    base, base2 = np.mean(errors[first]), np.mean(mse[first])
+    for name, e in errors.items():
+        print("%-13s relMSE %.4g +- %.2g (%d runs), %.2fx %s; MSE/mean^2 %.4g, %.2fx"
+              % (name, np.mean(e), np.std(e, ddof=1) / np.sqrt(len(e)), len(e),
+                 np.mean(e) / base, first, np.mean(mse[name]), np.mean(mse[name]) / base2))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,206 @@
+"""PSSMLT over the wavefront BDPT (bdpt_drjit/mlt.py).
+
+* The image agrees with BDPT's: independent MLT runs against independent BDPT
+  renders, by Welch's t-test on the whole image and 4 x 4 blocks (stats.py); the
+  error of each side is measured across its runs, never within one run (a run's
+  chains are correlated).  A block test sees where the chains spend their time, not
+  only the bootstrap's normalization.
+* The normalization: the image's luminance sum is b N at every iteration (expected
+  values add a + (1 - a) = 1 per chain), b the bootstrap's mean, itself an unbiased
+  BDPT estimate.
+* No kernel is compiled per iteration or per seed.
+* Stability: finite images on every stress scene.
+* Refusals: what cannot work is refused with a message."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import bdpt_drjit
+from bdpt_drjit import mlt
+from conftest import SCENES
+from stats import assert_statistically_equal
+
+RUNS = 8
+
+
+def _box(res=16, filt="box"):
+    d = mi.cornell_box()
+    d["sensor"]["film"].update(width=res, height=res, rfilter={"type": filt})
+    return mi.load_dict(d)
+
+
+def _mlt(scene, seed, **kw):
+    params = dict(mutations_per_pixel=32, bootstrap_samples=16384, chains=1024, max_depth=5)
+    params.update(kw)
+    return mlt.render(scene, seed=seed, **params)
+
+
+def test_image_matches_bdpt():
+    """8 runs of 32 mutations per pixel against 8 BDPT renders of 32 spp."""
+    scene = _box()
+    runs = [_mlt(scene, seed).image for seed in range(RUNS)]
+    refs = [bdpt_drjit.render(scene, spp=32, seed=100 + s, max_depth=5, light_paths=1,
+                              connections="all").image for s in range(RUNS)]
+    assert_statistically_equal(runs, refs, blocks=4, what="pssmlt vs bdpt")
+
+
+@pytest.mark.parametrize("p_large, mis", [(0.0, True), (1.0, True), (0.3, False)])
+def test_other_steps_match_bdpt(p_large, mis):
+    """Small steps only (the chains move by Kelemen's steps from the bootstrap's
+    states), large steps only (an independence sampler), and the default steps
+    without Kelemen's MIS of large steps agree too."""
+    scene = _box()
+    runs = [_mlt(scene, seed, large_step_probability=p_large, large_step_mis=mis).image
+            for seed in range(6)]
+    refs = [bdpt_drjit.render(scene, spp=32, seed=200 + s, max_depth=5, light_paths=1,
+                              connections="all").image for s in range(6)]
+    assert_statistically_equal(runs, refs, blocks=4, what="p_large %g, mis %s" % (p_large, mis))
+
+
+def test_image_sum_is_b_at_every_iteration():
+    scene = _box()
+    r = mlt.MLTRenderer(scene, seed=3, mutations_per_pixel=8, bootstrap_samples=8192,
+                        chains=512, max_depth=5, large_step_mis=False)
+    assert r.b > 0
+    while not r.done:
+        r.run_iteration()
+        img = r.tensor().numpy()
+        assert abs(img.mean() / r.b - 1.0) < 1e-4, (img.mean(), r.b)
+    assert 0.5 < r.result().stats["acceptance"] < 1.0
+
+
+def test_unbounded_depth_and_filters():
+    """max_depth -1 (coordinates past the stored depths are fresh numbers each
+    evaluation) and a gaussian filter (splatted records) agree with BDPT."""
+    scene = _box(filt="gaussian")
+    runs = [_mlt(scene, seed, max_depth=-1).image for seed in range(6)]
+    refs = [bdpt_drjit.render(scene, spp=32, seed=300 + s, max_depth=-1, light_paths=1,
+                              connections="all").image for s in range(6)]
+    # The light image and MLT's records lose the footprint outside the film where BDPT's
+    # camera samples are normalized (README, Films): compare the interior.
+    mask = np.zeros((16, 16), bool)
+    mask[2:-2, 2:-2] = True
+    assert_statistically_equal(runs, refs, blocks=2, what="max_depth -1", mask=mask)
+
+
+def test_no_kernel_per_iteration_or_seed():
+    scene = _box()
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        _mlt(scene, 1, mutations_per_pixel=8)
+        dr.kernel_history()
+        _mlt(scene, 2, mutations_per_pixel=8)
+        entries = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
+    new = [e for e in entries if not e.get("cache_hit", 1) or e.get("cache_disk", 0)]
+    assert entries and not new, "%d kernels compiled" % len(new)
+
+
+STRESS = sorted(p.name for p in (SCENES / "stress").glob("*.xml"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", STRESS)
+def test_stress_scenes_finite(name):
+    scene = mi.load_file(str(SCENES / "stress" / name), resx=16, resy=16)
+    res = mlt.render(scene, seed=1, mutations_per_pixel=4, bootstrap_samples=4096, chains=256,
+                     max_depth=8)
+    assert np.isfinite(res.image).all() and (res.image >= 0).all()
+    assert np.isfinite(res.stats["b"])
+
+
+def test_refusals():
+    scene = _box()
+    with pytest.raises(ValueError, match="large_step_probability"):
+        mlt.MLTRenderer(scene, large_step_probability=1.5)
+    with pytest.raises(ValueError, match="unknown or unsupported parameter 'light_paths'"):
+        mlt.MLTRenderer(scene, light_paths=1)
+    with pytest.raises(ValueError, match="lafortune"):
+        mlt.MLTRenderer(scene, mis="lafortune")
+    cloud = mi.load_file(str(SCENES / "media" / "cloud.xml"), resx=8, resy=8)
+    with pytest.raises(bdpt_drjit.UnsupportedPluginError, match="heterogeneous"):
+        mlt.MLTRenderer(cloud)
+
+
+def test_black_scene():
+    """No light reaches the camera: b = 0 and a black image, not NaNs."""
+    scene = mi.load_file(str(SCENES / "no-emitters.xml"), resx=8, resy=8)
+    with pytest.warns(UserWarning):
+        res = mlt.render(scene, seed=1, mutations_per_pixel=4, bootstrap_samples=1024, chains=64)
+    assert res.stats["b"] == 0 and not res.image.any()
+
+
+def test_plugin_and_api_give_the_same_image():
+    """``mi.render`` with the ``pssmlt`` plugin (spp = mutations per pixel, Mitsuba
+    0.6's names) and ``bdpt_drjit.render(integrator="pssmlt")`` are the same render."""
+    scene = _box()
+    integ = mi.load_dict({"type": "pssmlt", "max_depth": 5, "pLarge": 0.3,
+                          "luminanceSamples": 4096, "chains": 256})
+    a = mi.render(scene, integrator=integ, spp=8, seed=4).numpy()
+    b = bdpt_drjit.render(scene, spp=8, seed=4, integrator="pssmlt", max_depth=5,
+                          bootstrap_samples=4096, chains=256).image
+    assert np.allclose(a, b, rtol=1e-4, atol=1e-6)
+    with pytest.raises(RuntimeError, match="directSamples"):
+        mi.load_dict({"type": "pssmlt", "directSamples": 4})
+    with pytest.raises(ValueError, match="cluster"):
+        bdpt_drjit.render(scene, spp=8, integrator="pssmlt", cluster="local:2")
+
+
+def test_cli(tmp_path):
+    """``bdpt mlt``: an EXR whose header says what it is; --time stops after an
+    iteration with a correctly normalized image (its mean is b); bad options are one
+    line, not a traceback."""
+    import subprocess
+    import sys
+    from bdpt_drjit.exr import read_exr
+    from conftest import cli_env
+    out = tmp_path / "box.exr"
+    cmd = [sys.executable, "-m", "bdpt_drjit", "mlt", str(SCENES / "cornell-box.xml"),
+           "--res", "16x16", "--spp", "64", "--chains", "256",
+           "--bootstrap-samples", "4096", "--max-depth", "5", "--no-large-step-mis",
+           "-o", str(out)]
+    p = subprocess.run(cmd + ["--time", "0.01"], capture_output=True, text=True, timeout=300,
+                       env=cli_env())
+    assert p.returncode == 0, p.stderr
+    assert "time budget used up after 1 of 64 iterations" in p.stderr
+    image, meta = read_exr(out)
+    assert meta["integrator"] == "pssmlt" and int(meta["passes"]) == 1
+    assert abs(image[..., :3].mean() / float(meta["b"]) - 1) < 1e-4
+    assert out.with_suffix(".png").exists()
+    p = subprocess.run(cmd + ["--large-step-probability", "2"], capture_output=True,
+                       text=True, timeout=300, env=cli_env())
+    assert p.returncode != 0 and "large_step_probability" in p.stderr
+    assert "Traceback" not in p.stderr
+
+
+@pytest.mark.slow
+def test_homogeneous_fog_matches_bdpt():
+    """Free flights draw a varying count of numbers per depth (media.py): the chains'
+    coordinates shift with them, and the image still agrees with BDPT's."""
+    scene = mi.load_file(str(SCENES / "media" / "fog-cube.xml"), resx=16, resy=16, g=0.5)
+    runs = [_mlt(scene, seed, max_depth=6).image for seed in range(6)]
+    refs = [bdpt_drjit.render(scene, spp=32, seed=400 + s, max_depth=6, light_paths=1,
+                              connections="all").image for s in range(6)]
+    assert_statistically_equal(runs, refs, blocks=4, what="fog cube")
+
+
+@pytest.mark.parametrize("camera", ["thin lens, crop", "orthographic"])
+def test_other_cameras_match_bdpt(camera):
+    """A thin lens (aperture numbers in the camera stream) with a crop window (film
+    positions of the crop), and an orthographic camera (no light image: camera records
+    only)."""
+    from test_cameras import ORTHOGRAPHIC, cornell_thin_lens, with_sensor
+    if camera == "orthographic":
+        scene = with_sensor("cornell-box.xml", ORTHOGRAPHIC, 16)
+    else:
+        scene = cornell_thin_lens(0.5, res=20, film_xml=(
+            '<integer name="crop_offset_x" value="5"/><integer name="crop_offset_y" '
+            'value="3"/><integer name="crop_width" value="12"/><integer '
+            'name="crop_height" value="12"/>'))
+    runs = [_mlt(scene, seed, max_depth=6).image for seed in range(6)]
+    refs = [bdpt_drjit.render(scene, spp=32, seed=500 + s, max_depth=6, light_paths=1,
+                              connections="all").image for s in range(6)]
+    assert_statistically_equal(runs, refs, blocks=4, what=camera)
