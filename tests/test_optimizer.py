@@ -467,3 +467,20 @@ def test_the_pilots_buffers_are_touched_outside_its_timed_kernels():
     assert dr.KernelType.JIT not in {kind for kind, _ in launched}  # the light lap's own
     assert not llvm or (dr.KernelType.Memset, 4 * lanes * 4) in launched
     assert not np.any(np.array(moments.items.f2)) and not np.any(np.array(store.vertices.items.beta))
+
+
+def test_a_moment_pass_without_splats_of_its_chosen_light_subpaths():
+    """A later moment pass records the splats of one light subpath in every * r; where
+    the pass's splats all came from other light subpaths, there are no splat samples
+    (it crashed on the luminance of an empty array: the default on door-ajar.xml with
+    a 0.01 gap, 64x64, 1024 spp)."""
+    from types import SimpleNamespace as NS
+    from bdpt_drjit.render import _splat_moments
+    from bdpt_drjit.vertices import Splat
+    n = 3
+    items = Splat(pos=dr.zeros(mi.Point2f, n), value=dr.ones(mi.Spectrum, n),
+                  s=dr.full(mi.UInt32, 2, n), lane=mi.UInt32([1, 2, 3]),
+                  u_pt=dr.zeros(mi.Float, n), u_lt=dr.ones(mi.Float, n))
+    store = NS(splats=NS(size=lambda: n, capacity=16, items=items))
+    ctx = NS(mis_rates=(1.0, 1.0), moments=NS(every=4), camera=None)
+    assert _splat_moments(ctx, store) is None
