@@ -1,6 +1,7 @@
 """PSSMLT against BDPT at equal time on scenes/door-ajar.xml (issue 31).
 
     python -m benchmarks.mlt_door [--seconds 15] [--runs 4] [--res 64] [--ref-spp 4096]
+    python -m benchmarks.mlt_door --scene scenes/cornell-box.xml --seconds 5   # an easy scene
 
 Each round renders every method once for ``--seconds`` (interleaved, so that the
 machine's load falls on all alike): ``pssmlt`` (its bootstrap included in its time),
@@ -53,15 +54,19 @@ def main(argv=None):
     ap.add_argument("--res", type=int, default=64)
     ap.add_argument("--ref-spp", type=int, default=4096)
     ap.add_argument("--gap-start", type=float, default=0.45)
+    ap.add_argument("--scene", default="scenes/door-ajar.xml",
+                    help="another scene (its own parameters; --gap-start is door-ajar's)")
     ap.add_argument("--no-mis", action="store_true", help="pssmlt without large-step MIS")
     ap.add_argument("--chains", type=int, default=16384)
     ap.add_argument("--bootstrap", type=int, default=0, help="0: automatic (mlt.py)")
     ap.add_argument("--methods", default="pssmlt,bdpt (auto),bdpt (Veach)")
     args = ap.parse_args(argv)
-    scene = mi.load_file("scenes/door-ajar.xml", resx=args.res, resy=args.res,
-                         gap_start=args.gap_start)
+    door = Path(args.scene).name == "door-ajar.xml"
+    scene = mi.load_file(args.scene, resx=args.res, resy=args.res,
+                         **({"gap_start": args.gap_start} if door else {}))
     t0 = time.perf_counter()
-    cache = Path("/tmp/mlt_door_ref_%d_%d_%g.npy" % (args.res, args.ref_spp, args.gap_start))
+    cache = Path("/tmp/mlt_ref_%s_%d_%d_%g.npy" % (Path(args.scene).stem, args.res, args.ref_spp,
+                                                   args.gap_start))
     if cache.exists():
         refs = list(np.load(cache))
     else:
