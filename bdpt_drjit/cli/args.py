@@ -152,6 +152,13 @@ def add_scene_options(p) -> None:
 
 
 # -- commands -------------------------------------------------------------------------
+def _add_scene_and_output(p) -> None:
+    """The scene file and the output EXR of a command that renders."""
+    p.add_argument("scene", nargs="?", help="scene XML file (default: the Cornell box in scenes/)")
+    p.add_argument("-o", "--output", metavar="OUT.exr",
+                   help="output EXR (default: <scene name>.exr in the current directory)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
     parser = _Parser(prog=PROG, description="Wavefront bidirectional path tracer "
@@ -164,9 +171,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "(float32, spp, seed and settings in the header) and a tone-mapped "
                        "sRGB preview OUT.png. Ctrl-C stops after the current pass and "
                        "writes what was rendered (exit status 130; 143 for SIGTERM).")
-    r.add_argument("scene", nargs="?", help="scene XML file (default: the Cornell box in scenes/)")
-    r.add_argument("-o", "--output", metavar="OUT.exr",
-                   help="output EXR (default: <scene name>.exr in the current directory)")
+    _add_scene_and_output(r)
     r.add_argument("--spp", type=int_at_least(1),
                    help="samples per pixel (default: the scene's sampler)")
     r.add_argument("--seed", type=int_at_least(0), default=0, help="random seed (default 0)")
@@ -189,9 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "MLT over BDPT samples (thousands of Markov chains as lanes). Writes "
                        "OUT.exr and OUT.png. --time or Ctrl-C stop after the current "
                        "iteration and write the image of the iterations done.")
-    t.add_argument("scene", nargs="?", help="scene XML file (default: the Cornell box in scenes/)")
-    t.add_argument("-o", "--output", metavar="OUT.exr",
-                   help="output EXR (default: <scene name>.exr in the current directory)")
+    _add_scene_and_output(t)
     t.add_argument("--mutations-per-pixel", "--spp", dest="mutations_per_pixel",
                    type=int_at_least(1), help="mean mutations per pixel (default: the "
                    "scene's sample count)")
