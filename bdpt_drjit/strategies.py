@@ -46,6 +46,10 @@ class StrategySet:
                              "vertex can be connected to)")
         self.hide_emitters = settings.hide_emitters
         self.has_emitters = has_emitters
+        # Vertex merging (merge.py): camera surface vertices merge with stored light
+        # vertices y_i, i >= 1; "ppm" merges alone, at a camera path's first smooth vertex.
+        self.merging = bool(settings.merging) and has_emitters and budget.light_ratio > 0
+        self.ppm = self.subset == "ppm"
 
     # -- which strategies are on ---------------------------------------------------
     def enabled(self, s, t):
@@ -62,6 +66,8 @@ class StrategySet:
             conds += [s <= 1, t >= 2]
         elif self.subset == "lt":
             conds.append(t == 1)
+        elif self.subset == "ppm":          # emitters seen through delta lobes only
+            conds.append(s == 0)
         if not self.light_image:
             conds.append(t >= 2)
         if not self.connects:
@@ -76,7 +82,7 @@ class StrategySet:
     @property
     def use_mis(self) -> bool:
         """MIS weights apply unless one strategy per path length is left."""
-        return self.technique is None and self.subset != "lt"
+        return self.technique is None and self.subset not in ("lt", "ppm")
 
     def max_camera_vertices(self) -> int | None:
         """The deepest camera vertex z_j (j = t - 1) any strategy uses; None: unbounded.
@@ -97,19 +103,30 @@ class StrategySet:
             return s - 1 if (s >= 2 or (s == 1 and t == 1)) else -1
         if self.subset == "pt" or self.budget.light_ratio <= 0:
             return -1
-        if not (self.light_image or self.connects):
+        if not (self.light_image or self.connects or self.merging):
             return -1
         if self.max_depth < 0:
             return None
-        return self.max_depth - (1 if self.light_image else 2)
+        return self.max_depth - (1 if self.light_image or self.merging else 2)
 
     def stores(self, s):
         """Must light vertex y_{s-1} be stored: is some (s, t >= 2) on?"""
         if self.technique is not None:
             return (s == self.technique[0]) & (self.technique[1] >= 2) & (s >= 2)
+        merged = self.merges(s - 1, 1)
         if self.subset != "all" or not self.connects:
+            return merged
+        return (self.enabled(s, 2) & (s >= 2)) | merged
+
+    def merges(self, i, j):
+        """Can light vertex y_i merge with camera vertex z_j (a path of i + j edges;
+        ints or Dr.Jit integers)?  y_0 (on the emitter) and z_0 (the camera) never do."""
+        if not (self.merging and self.has_emitters):
             return False
-        return self.enabled(s, 2) & (s >= 2)
+        ok = (i >= 1) & (j >= 1)
+        if self.max_depth >= 0:
+            ok = ok & (i + j <= self.max_depth)
+        return ok
 
     def add(self, images, radiance, lane, s, t, value):
         """radiance + value, and value into (s, t)'s strategy-image layer if ``images``."""
