@@ -261,7 +261,7 @@ def check_against_brute_force(rng, heuristic, light_image, k, r, kappa, lens=Fal
     valid = {s: strategy_valid(P, k, s, light_image) & (rate(k, s, r, kappa) > 0)
              for s in range(k + 1)}
     pdfs = {s: brute_force_pdf(P, k, s, lens) * rate(k, s, r, kappa) for s in range(k + 1)}
-    for i in range(1, k):
+    for i in range(1, k if eta > 0 else 1):
         valid["vm", i] = merge_valid(P, k, i, eta)
         pdfs["vm", i] = brute_force_merge_pdf(P, k, i, eta, lens)
     hp = {s: np.where(valid[s], (pdfs[s] ** 2 if heuristic == "power" else
