@@ -377,6 +377,8 @@ class Weights:
         medium vertex never merges), else 0 (a Python 0 leaves it out of the kernels)."""
         if not self.merging:
             return 0.0
+        if surface is True:
+            return self.eta
         return dr.select(surface, self.eta, 0.0)
 
     def rate(self, depth):

@@ -22,6 +22,7 @@ from .settings import Settings
 # to DEEP_K, then one for every longer path (an EXR reader's channel limit is 1024).
 LAYER_K = 8
 DEEP_K = 16
+MERGE_LAYER = ("vm", 0)      # every merge (merge.py), whatever its path length
 
 
 class StrategySet:
@@ -134,6 +135,13 @@ class StrategySet:
             images.add(lane, s, t, value)
         return type(radiance)(radiance + value)
 
+    def add_merge(self, images, radius, lane, value):
+        """radius + value of the merges at a camera vertex (into the "vm" layer if
+        ``images``: merges of every path length together)."""
+        if images is not None:
+            images.add_layer(lane, images.merge_layer, value)
+        return type(radius)(radius + value)
+
     # -- strategy images -------------------------------------------------------------
     def layers(self) -> list:
         """The strategy-image layers a render can fill: (s, t) pairs up to k = LAYER_K,
@@ -142,7 +150,8 @@ class StrategySet:
         top = self.max_depth if self.max_depth >= 0 else DEEP_K + 1
         out = [(s, k + 1 - s) for k in range(1, min(top, LAYER_K) + 1) for s in range(k + 1)
                if self.enabled(s, k + 1 - s)]
-        return out + [("k", k) for k in range(LAYER_K + 1, min(top, DEEP_K + 1) + 1)]
+        out += [("k", k) for k in range(LAYER_K + 1, min(top, DEEP_K + 1) + 1)]
+        return out + ([MERGE_LAYER] if self.merging else [])
 
     def layer_table(self) -> mi.Int32:
         """Layer index by (k, s): k * (LAYER_K + 1) + s for k <= LAYER_K, then
@@ -170,8 +179,14 @@ class StrategyImages:
     def __init__(self, strategies: StrategySet, lanes: int):
         self.table = strategies.layer_table()
         self.lanes = lanes
-        self.values = dr.zeros(mi.Spectrum, lanes * len(strategies.layers()))
+        layers = strategies.layers()
+        self.values = dr.zeros(mi.Spectrum, lanes * len(layers))
         self._lanes = dr.opaque(mi.UInt32, lanes)
+        self.merge_layer = layers.index(MERGE_LAYER) if MERGE_LAYER in layers else None
+
+    def add_layer(self, lane, layer: int, value):
+        dr.scatter_reduce(dr.ReduceOp.Add, self.values, value,
+                          dr.opaque(mi.UInt32, layer) * self._lanes + lane)
 
     def add(self, lane, s, t, value):
         layer = dr.gather(mi.Int32, self.table, StrategySet.layer_slot(s, t))
