@@ -48,6 +48,9 @@ from .vertices import gather
 # default 512x512 film), and its radius reduction alpha.
 RADIUS_FACTOR = 0.003
 REFERENCE_PIXELS = 512 * 512
+# Lanes of an automatic pass with merging (settings.samples_per_pass 0): the radius
+# shrinks from pass to pass, so passes stay small (SmallVCM's are 1 spp).
+PASS_LANES = 1 << 16
 
 
 def first_radius(scene: mi.Scene, pixels: int, radius: float) -> float:
@@ -161,22 +164,19 @@ def _merge_one(ctx, store, item, active, state, v):
     return dr.select(active, finite(value), 0.0)
 
 
-def merge_at(ctx, store, state, v, active) -> mi.Spectrum:
-    """Every merge at camera vertex z_j (j = state.depth): the sum over light vertices
-    within r, as one symbolic loop over the 8 cells and their items."""
-    grid = ctx.grid
-    p = v.p
+def visit(grid: HashGrid, store, p, active, value, zero):
+    """The sum over stored light vertices within r of ``p`` of ``value(item, near)``
+    (0 where not ``near``): one symbolic loop over the 8 cells a sphere of radius r can
+    touch and the items of their buckets, one item (or one cell change) per iteration."""
     scaled = p * grid.inv_cell
     cell = mi.Vector3i(dr.floor(scaled))
-    frac = scaled - dr.floor(scaled)
-    away = mi.Vector3i(dr.select(frac < 0.5, -1, 1))
-    n = dr.width(p)
+    away = mi.Vector3i(dr.select(scaled - dr.floor(scaled) < 0.5, -1, 1))
 
     def body(k, pos, end, visiting, total):
         inside = pos < end
         item = dr.gather(mi.UInt32, grid.order, pos, inside)
         near = _near(grid, store, item, visiting, p, inside)
-        total = total + _merge_one(ctx, store, item, near, state, v)
+        total = type(zero)(total + value(item, near))
         pos = dr.select(inside, pos + 1, pos)
         k = dr.select(inside, k, k + 1)
         load = ~inside & (k < 8)
@@ -188,11 +188,22 @@ def merge_at(ctx, store, state, v, active) -> mi.Spectrum:
         visiting = dr.select(load, nxt, visiting)
         return k, pos, end, visiting, total
 
+    n = dr.width(p)
     _, _, _, _, total = dr.while_loop(
-        (dr.select(active, mi.Int32(-1), mi.Int32(8)), dr.zeros(mi.UInt32, n), dr.zeros(mi.UInt32, n),
-         mi.Vector3i(cell), dr.zeros(mi.Spectrum, n)),
+        (dr.select(active, mi.Int32(-1), mi.Int32(8)), dr.zeros(mi.UInt32, n),
+         dr.zeros(mi.UInt32, n), mi.Vector3i(cell), type(zero)(zero)),
         lambda k, pos, end, visiting, total: k < 8, body,
         labels=("k", "pos", "end", "visiting", "total"), label="merges")
+    return total
+
+
+def merge_at(ctx, store, state, v, active) -> mi.Spectrum:
+    """Every merge at camera vertex z_j (j = state.depth): the weighted sum over the
+    light vertices within r, times beta_E / (pi r^2 N_L)."""
+    grid = ctx.grid
+    total = visit(grid, store, v.p, active,
+                  lambda item, near: _merge_one(ctx, store, item, near, state, v),
+                  dr.zeros(mi.Spectrum, dr.width(v.p)))
     return dr.select(active, finite(state.beta * total * grid.norm), 0.0)
 
 

@@ -317,6 +317,9 @@ class Renderer:
         lane_bytes = (_LANE_BYTES + _VERTICES_PER_LANE * RECORD_BYTES
                       + _SPLATS_PER_LANE * SPLAT_BYTES + len(layers) * 16)
         max_lanes = min(max(1024, self.settings.memory_budget // lane_bytes), 2 ** 31)
+        if self.settings.merging and not self.settings.samples_per_pass:
+            # The radius shrinks per pass (merge.py): passes of a few samples per pixel.
+            max_lanes = min(max_lanes, max(merge.PASS_LANES, self.pixels))
         self.plan = plan_passes(self.spp, self.pixels, max_lanes, self.settings.samples_per_pass,
                                 self._accepted_count)
         self.pilot, self._stride, self._path_tracer = None, {}, None
