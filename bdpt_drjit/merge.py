@@ -39,30 +39,46 @@ from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from .strategies import StrategySet
 from .surface import finite, spectrum_nonzero
 from .vertices import gather
 
-# SmallVCM's default first radius: 0.003 x the scene's bounding-sphere radius (at its
-# default 512x512 film), and its radius reduction alpha.
-RADIUS_FACTOR = 0.003
-REFERENCE_PIXELS = 512 * 512
+# The default first radius, in pixel footprints at the scene's centre.  SmallVCM's
+# default, 0.003 x the scene's bounding-sphere radius, is about 1 of them in
+# scenes/cornell-box.xml at 512x512 but 2 in benchmarks/scene_files/sds.xml (a floor far
+# wider than the view); scaled to small films it made merging there 30x slower (a query
+# visits every light vertex of 8 cells of side 2r).
+RADIUS_PIXELS = 1.5
 # Lanes of an automatic pass with merging (settings.samples_per_pass 0): the radius
 # shrinks from pass to pass, so passes stay small (SmallVCM's are 1 spp).
 PASS_LANES = 1 << 16
 
 
-def first_radius(scene: mi.Scene, pixels: int, radius: float) -> float:
-    """r_1: ``radius`` if set (> 0), else SmallVCM's 0.003 x the scene's bounding-sphere
-    radius at 512x512, scaled with the pixel footprint (x 512 / sqrt(pixels)), so that
-    a small test film merges over about as many pixels as SmallVCM's does."""
+def first_radius(scene: mi.Scene, sensor: mi.Sensor, radius: float) -> float:
+    """r_1: ``radius`` if set (> 0), else RADIUS_PIXELS pixel footprints at the
+    distance of the scene's bounding-sphere centre from the camera (two rays through
+    neighbouring pixels at the film's centre: any camera model)."""
     if radius > 0:
         return float(radius)
     sphere = scene.bbox().bounding_sphere()
-    scene_radius = float(dr.ravel(sphere.radius)[0]) if dr.is_array_v(sphere.radius) \
-        else float(sphere.radius)
-    return RADIUS_FACTOR * scene_radius * math.sqrt(REFERENCE_PIXELS / max(pixels, 1))
+    centre = _vec(sphere.center)
+    size = sensor.film().crop_size()
+    points = []
+    for dx in (0.0, 1.0):
+        u = mi.Point2f((0.5 * size[0] + dx) / size[0], 0.5)
+        ray, _ = sensor.sample_ray(0.0, 0.5, u, mi.Point2f(0.5))
+        o, d = _vec(ray.o), _vec(ray.d)
+        points.append(o + d * np.linalg.norm(centre - o))
+    footprint = float(np.linalg.norm(points[1] - points[0]))
+    scene_radius = float(_vec(sphere.radius)[0])
+    return max(RADIUS_PIXELS * footprint, 1e-5 * scene_radius, 1e-7)
+
+
+def _vec(v) -> np.ndarray:
+    """A scalar or width-1 Dr.Jit value as a flat float64 NumPy array."""
+    return np.ravel(np.array(v, dtype=np.float64))
 
 
 def pass_radius(r1: float, alpha: float, index: int) -> float:

@@ -282,7 +282,7 @@ class Renderer:
                              "vertex's throughput holds its own subpath's wavelengths, which "
                              "the camera samples merging with it do not share")
         # Merging: the first pass's radius (merge.py); 0 without merging.
-        self.merge_radius = (merge.first_radius(scene, self.pixels, self.settings.radius)
+        self.merge_radius = (merge.first_radius(scene, self.sensor, self.settings.radius)
                              if self.settings.merging else 0.0)
         self.spp = int(spp) if spp else self.sensor.sampler().sample_count()
         if self.spp <= 0:

@@ -75,8 +75,9 @@ PARAMS = (
           "(the bias shrinks with the radius over passes); medium vertices connect but do "
           "not merge.  The ``vcm`` integrator is ``bdpt`` with merging on."),
     Param("radius", str, "auto", "Merging radius of the first pass, in world units; "
-          "``auto`` (or 0): SmallVCM's 0.003 x the scene's bounding-sphere radius at "
-          "512x512, scaled with the pixel footprint (x 512 / sqrt(W H))."),
+          "``auto`` (or 0): 1.5 pixel footprints at the distance of the scene's centre "
+          "(SmallVCM's default, 0.003 x the scene's radius, is about 1 of them in the "
+          "Cornell box at 512x512)."),
     Param("radius_alpha", float, 0.75, "Radius reduction of progressive merging: pass i "
           "(1-based) merges within r_1 i^((alpha - 1) / 2); 1 keeps the radius fixed "
           "(then merging is biased, not consistent)."),

@@ -113,7 +113,8 @@ def scene_info(args) -> list:
 
 def _merging_lines(scene, settings: dict) -> list:
     """What vertex merging (merge.py) will do, where the integrator asks for it."""
-    if not (settings.get("merging") or settings.get("strategy_subset") == "ppm"):
+    if not (settings.get("merging") or settings.get("strategy_subset") == "ppm") \
+            or not scene.sensors():
         return []
     from ..merge import first_radius
     from ..settings import Settings
@@ -121,15 +122,13 @@ def _merging_lines(scene, settings: dict) -> list:
         s = Settings.from_dict(settings)
     except ValueError:
         return []            # the verdict line says why
-    film = scene.sensors()[0].film() if scene.sensors() else None
-    pixels = int(film.crop_size()[0]) * int(film.crop_size()[1]) if film else 1
     from ..media import Media
     try:
         media = bool(scene.sensors()) and Media(scene, scene.sensors()[0]).present
     except Exception:       # noqa: BLE001  (the verdict line reports a refused medium)
         media = False
     return ["merging:    on (vertex connection and merging): consistent, not unbiased; "
-            "radius r_1 = %.4g, alpha %g" % (first_radius(scene, pixels, s.radius), s.radius_alpha)
+            "radius r_1 = %.4g, alpha %g" % (first_radius(scene, scene.sensors()[0], s.radius), s.radius_alpha)
             + ("; medium vertices connect but do not merge" if media else
                "; (medium vertices would connect but not merge)")]
 
