@@ -100,6 +100,14 @@ def _div(a, b):
     return dr.select((b != 0) & dr.isfinite(r), r, 0.0)
 
 
+def _plus_vm(h: Heuristic, x, m_vm):
+    """x + h(m_vm): a merging term, left out of the kernel where merging is off (a Python
+    0), so that BDPT's kernels stay what they were without merging."""
+    if isinstance(m_vm, (int, float)) and m_vm == 0:
+        return x
+    return x + h(m_vm)
+
+
 def _weight(denominator):
     """1 / (sum of heuristic ratios), 0 if the sum is degenerate."""
     w = dr.rcp(denominator)
@@ -196,8 +204,8 @@ def after_scatter(h: Heuristic, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delt
     merging here is one more strategy behind the next vertex (tech. rep. eq. 35's
     eta term; SmallVCM adds its ``mMisVmWeightFactor`` in the same place).
     """
-    d_vc_smooth = h(_div(cos_out, pdf_fwd_w)) * (d_vc * h(pdf_rev_w) + h(m_vcm) * d_vcm
-                                                 + h(m_vm))
+    d_vc_smooth = h(_div(cos_out, pdf_fwd_w)) * _plus_vm(h, d_vc * h(pdf_rev_w)
+                                                         + h(m_vcm) * d_vcm, m_vm)
     d_vcm_smooth = h(_div(1.0, pdf_fwd_w))
     return (dr.select(delta, 0.0, d_vcm_smooth),
             dr.select(delta, d_vc * h(cos_out), d_vc_smooth))
@@ -229,8 +237,8 @@ def weight_nee(h: Heuristic, d_vcm, d_vc, bsdf_pdf_w, nee_pdf_w, emission_pdf,
     eta where the camera vertex could merge with y_1 (eq. 45's eta term).
     """
     w_light = h(_div(bsdf_pdf_w, nee_pdf_w))
-    w_camera = h(_div(emission_pdf * cos_cam, nee_pdf_w * cos_light)) * (
-        h(m_vcm) * d_vcm + d_vc * h(bsdf_rev_w) + h(m_vm))
+    w_camera = h(_div(emission_pdf * cos_cam, nee_pdf_w * cos_light)) * _plus_vm(
+        h, h(m_vcm) * d_vcm + d_vc * h(bsdf_rev_w), m_vm)
     return _weight(w_light + 1.0 + w_camera)
 
 
@@ -243,7 +251,8 @@ def weight_light_to_camera(h: Heuristic, d_vcm, d_vc, cam_pdf_a, bsdf_rev_w, m_v
     the direction back to y_{s-2} had the path arrived from the camera.  ``m_vm``: eta
     where y_{s-1} could merge with z_1 (eq. 46's eta term).
     """
-    return _weight(1.0 + h(cam_pdf_a) * (h(m_vcm) * d_vcm + d_vc * h(bsdf_rev_w) + h(m_vm)))
+    return _weight(1.0 + h(cam_pdf_a) * _plus_vm(h, h(m_vcm) * d_vcm + d_vc * h(bsdf_rev_w),
+                                                 m_vm))
 
 
 def weight_emitter_to_camera(h: Heuristic, cam_pdf_a, emission_pos_pdf_a):
@@ -266,10 +275,10 @@ def weight_connect(h: Heuristic, light_d_vcm, light_d_vc, cam_d_vcm, cam_d_vc,
     the connecting edge.  ``m_self``: the connection's own rate (kappa).  ``m_*_vm``:
     eta where that endpoint could merge (eqs. 40-41's eta terms).
     """
-    w_light = h(cam_bsdf_pdf_a) * (h(m_light_vcm) * light_d_vcm + light_d_vc * h(light_bsdf_rev_w)
-                                   + h(m_light_vm))
-    w_camera = h(light_bsdf_pdf_a) * (h(m_cam_vcm) * cam_d_vcm + cam_d_vc * h(cam_bsdf_rev_w)
-                                      + h(m_cam_vm))
+    w_light = h(cam_bsdf_pdf_a) * _plus_vm(
+        h, h(m_light_vcm) * light_d_vcm + light_d_vc * h(light_bsdf_rev_w), m_light_vm)
+    w_camera = h(light_bsdf_pdf_a) * _plus_vm(
+        h, h(m_cam_vcm) * cam_d_vcm + cam_d_vc * h(cam_bsdf_rev_w), m_cam_vm)
     return _weight(1.0 + _div(w_light + w_camera, h(m_self)))
 
 

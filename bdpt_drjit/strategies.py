@@ -117,7 +117,8 @@ class StrategySet:
         merged = self.merges(s - 1, 1)
         if self.subset != "all" or not self.connects:
             return merged
-        return (self.enabled(s, 2) & (s >= 2)) | merged
+        connected = self.enabled(s, 2) & (s >= 2)
+        return connected if merged is False else connected | merged
 
     def merges(self, i, j):
         """Can light vertex y_i merge with camera vertex z_j (a path of i + j edges;
