@@ -97,6 +97,18 @@ def _bucket(cell: mi.Vector3i, buckets) -> mi.UInt32:
 
 
 @dataclass
+class Photon:
+    """What a merge reads of a stored light vertex y_i, copied in bucket order when
+    the grid is built: a query then reads neighbouring records (one cell's), and 12
+    values instead of the 22 of the vertex record it would otherwise gather."""
+    w: mi.Vector3f          # toward y_{i-1} (world)
+    beta: mi.Spectrum       # the light subpath's throughput arriving at y_i
+    d_vcm: mi.Float         # MIS chains (mis.py)
+    d_vc: mi.Float
+    s: mi.UInt32            # i + 1
+
+
+@dataclass
 class HashGrid:
     """The pass's light vertices in cells of side 2r (see the module docstring)."""
     order: mi.UInt32        # pool items, bucket after bucket
@@ -106,9 +118,13 @@ class HashGrid:
     radius2: mi.Float       # r^2
     buckets: mi.UInt32      # the bucket count
     norm: mi.Float          # 1 / (pi r^2 N_L)
+    points: mi.Point3f = None   # positions in bucket order
+    photons: Photon = None      # merge records in bucket order (render passes)
 
     @staticmethod
-    def build(store, radius: float, light_subpaths: int) -> "HashGrid":
+    def build(store, radius: float, light_subpaths: int, photons: bool = True) -> "HashGrid":
+        """The grid of ``store``'s vertices (vertices.LightVertexStore's pool) at radius r;
+        ``photons``: also copy their merge records (``Photon``) in bucket order."""
         items = store.vertices.items
         capacity = store.vertices.capacity
         index = dr.arange(mi.UInt32, capacity)
@@ -121,14 +137,23 @@ class HashGrid:
         count = dr.zeros(mi.UInt32, capacity)
         slot = dr.scatter_inc(count, bucket, ok)
         dr.eval(slot, count)            # the counter's results, in the kernel that counts
-        start = dr.prefix_sum(count)              # exclusive
+        start = dr.prefix_sum(count)    # exclusive
         order = dr.zeros(mi.UInt32, capacity)
         dr.scatter(order, index, dr.gather(mi.UInt32, start, bucket, ok) + slot, ok)
+        dr.eval(order)
         grid = HashGrid(order=order, start=start, count=count, inv_cell=inv_cell,
                         radius2=dr.opaque(mi.Float, radius * radius), buckets=buckets,
                         norm=dr.opaque(mi.Float, 1.0 / (math.pi * radius * radius
-                                                        * max(light_subpaths, 1))))
-        dr.eval(grid.order, grid.start)
+                                                        * max(light_subpaths, 1))),
+                        points=dr.gather(mi.Point3f, items.record.p, order))
+        if photons:
+            rec = gather(items.record, order)
+            grid.photons = Photon(w=rec.sh_frame.to_world(rec.wi),
+                                  beta=dr.gather(type(items.beta), items.beta, order),
+                                  d_vcm=dr.gather(mi.Float, items.d_vcm, order),
+                                  d_vc=dr.gather(mi.Float, items.d_vc, order),
+                                  s=dr.gather(mi.UInt32, items.s, order))
+        dr.eval(grid.start, grid.points, grid.photons)
         return grid
 
     def neighbour(self, cell: mi.Vector3i, away: mi.Vector3i, k) -> mi.Vector3i:
@@ -140,21 +165,12 @@ class HashGrid:
                                   dr.select((k & 1) != 0, away.z, 0))
 
 
-def _near(grid: HashGrid, store, item, cell, p, active):
-    """Is pool ``item`` of the visited ``cell`` (not a hash collision's) and within r of p?"""
-    y = dr.gather(mi.Point3f, store.vertices.items.record.p, item, active)
+def _near(grid: HashGrid, pos, cell, p, active):
+    """Is the vertex at ``pos`` (bucket order) of the visited ``cell`` (not a hash
+    collision's) and within r of p?"""
+    y = dr.gather(mi.Point3f, grid.points, pos, active)
     own = dr.all(_cell(y, grid.inv_cell) == cell)
     return active & own & (dr.squared_norm(y - p) <= grid.radius2)
-
-
-def _light_vertex(store, item, active):
-    """The fields of a stored light vertex that a merge reads."""
-    items = store.vertices.items
-    rec = items.record
-    get = lambda source: gather(source, item, active)   # noqa: E731
-    frame = get(rec.sh_frame)
-    w_y = frame.to_world(get(rec.wi))                  # toward y_{i-1}
-    return w_y, get(items.beta), get(items.d_vcm), get(items.d_vc), get(items.s)
 
 
 class _Light:
@@ -163,10 +179,11 @@ class _Light:
         self.d_vcm, self.d_vc, self.s = d_vcm, d_vc, s
 
 
-def _merge_one(ctx, store, item, active, state, v):
-    """One light vertex's weighted merge contribution at camera vertex ``v`` (z_j),
-    before beta_E and the normalization."""
-    w_y, beta_l, d_vcm, d_vc, s = _light_vertex(store, item, active)
+def _merge_one(ctx, pos, active, state, v):
+    """The weighted merge contribution of the light vertex at ``pos`` (bucket order) at
+    camera vertex ``v`` (z_j), before beta_E and the normalization."""
+    y = gather(ctx.grid.photons, pos, active)
+    w_y, beta_l, d_vcm, d_vc, s = y.w, y.beta, y.d_vcm, y.d_vc, y.s
     active &= ctx.strategies.merges(s - 1, state.depth)
     cos_g, ok = v.cosine(w_y)
     active &= ok & (cos_g > 0)
@@ -181,7 +198,8 @@ def _merge_one(ctx, store, item, active, state, v):
 
 
 def visit(grid: HashGrid, store, p, active, value, zero):
-    """The sum over stored light vertices within r of ``p`` of ``value(item, near)``
+    """The sum over stored light vertices within r of ``p`` of ``value(pos, near)``
+    (``pos``: the vertex's place in bucket order, ``grid.order[pos]`` its pool item)
     (0 where not ``near``): one symbolic loop over the 8 cells a sphere of radius r can
     touch and the items of their buckets, one item (or one cell change) per iteration."""
     scaled = p * grid.inv_cell
@@ -190,9 +208,8 @@ def visit(grid: HashGrid, store, p, active, value, zero):
 
     def body(k, pos, end, visiting, total):
         inside = pos < end
-        item = dr.gather(mi.UInt32, grid.order, pos, inside)
-        near = _near(grid, store, item, visiting, p, inside)
-        total = type(zero)(total + value(item, near))
+        near = _near(grid, pos, visiting, p, inside)
+        total = type(zero)(total + value(pos, near))
         pos = dr.select(inside, pos + 1, pos)
         k = dr.select(inside, k, k + 1)
         load = ~inside & (k < 8)
@@ -218,7 +235,7 @@ def merge_at(ctx, store, state, v, active) -> mi.Spectrum:
     light vertices within r, times beta_E / (pi r^2 N_L)."""
     grid = ctx.grid
     total = visit(grid, store, v.p, active,
-                  lambda item, near: _merge_one(ctx, store, item, near, state, v),
+                  lambda pos, near: _merge_one(ctx, pos, near, state, v),
                   dr.zeros(mi.Spectrum, dr.width(v.p)))
     return dr.select(active, finite(state.beta * total * grid.norm), 0.0)
 

@@ -49,11 +49,12 @@ def test_grid_finds_each_vertex_within_r_once(radius):
                              in_medium=mi.Bool(in_medium))
     store = SimpleNamespace(vertices=SimpleNamespace(
         items=SimpleNamespace(record=record), count=mi.UInt32([n]), capacity=capacity))
-    grid = merge.HashGrid.build(store, radius, n)
+    grid = merge.HashGrid.build(store, radius, n, photons=False)
     queries = (pts[rng.integers(0, n, 500)] + rng.normal(0.0, radius, (500, 3))).astype(np.float32)
     q = mi.Point3f(*[queries[:, i] for i in range(3)])
     one = lambda item, near: dr.select(near, 1.0, 0.0)                       # noqa: E731
-    index = lambda item, near: dr.select(near, mi.Float(item), 0.0)           # noqa: E731
+    index = lambda pos, near: dr.select(                                      # noqa: E731
+        near, mi.Float(dr.gather(mi.UInt32, grid.order, pos, near)), 0.0)
     count = merge.visit(grid, store, q, mi.Bool(True), one, dr.zeros(mi.Float, 500)).numpy()
     total = merge.visit(grid, store, q, mi.Bool(True), index, dr.zeros(mi.Float, 500)).numpy()
     d2 = ((queries[:, None, :] - pts[None, :n, :].astype(np.float32)) ** 2).sum(-1)
