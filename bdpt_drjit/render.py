@@ -4,6 +4,8 @@
         camera rays        camera.Camera.sample_rays     one lane per pixel sample
         light subpaths     walk.trace_light_subpaths     y_i stored for connections,
                                                          t = 1 splats (splat.py)
+        hash grid          merge.HashGrid.build          merging only: the stored
+                                                         light vertices by cell
         camera subpaths    walk.trace_camera_subpaths    s = 0, s = 1 and s, t >= 2
                                                          (connect.py)
         film               film.FilmAccumulator          camera block, then splats

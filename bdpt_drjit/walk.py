@@ -5,7 +5,11 @@
     camera walk, per depth j: intersect z_j -> s = 0 (emitter or environment hit)
                               -> MIS to area measure -> s = 1 (next event)
                               -> s, t >= 2 (z_j to the lane's stored light vertices)
-                              -> scatter -> roulette
+                              -> merges (``merging``: z_j with every stored light
+                                 vertex within r, merge.py) -> scatter -> roulette
+
+``strategy_subset`` ``ppm`` (merging alone) ends a camera subpath at the first vertex
+where it scatters smoothly: that vertex's merges render the rest.
 
 A budget that leaves first hits to the light image (budgets.Budget.light_first_hits)
 evaluates nothing at z_1 and ends every camera subpath whose z_1 scatters smoothly.

@@ -40,6 +40,12 @@ weights must be a function of the path).  The camera's medium is the sensor's
 ``medium`` (checked against where its rays start); light subpaths start in the medium
 an emitter declares, or that its shape's media say, or that surrounds it.
 
+Vertex merging (``merging``; the ``vcm`` plugin is ``bdpt`` with it on,
+``integrators/vcm.py``): every camera surface vertex that scatters smoothly also merges
+with the pass's light vertices within ``radius``, one more set of MIS strategies.
+Consistent, not unbiased (the radius shrinks over passes by ``radius_alpha``); without
+it (the default) bdpt is unbiased.
+
 {params}
 
 Supported: the ``perspective``, ``thinlens`` and ``orthographic`` sensors; ``area``,
