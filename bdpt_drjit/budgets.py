@@ -75,6 +75,13 @@ def fixed_budget(settings) -> Budget | None:
         return PATH_TRACING
     if settings.strategy_subset == "lt":
         return Budget(1.0, 0)
+    if settings.strategy_subset == "ppm":      # merging alone: no connections
+        return Budget(1.0, 0)
+    if settings.merging and (settings.light_paths == "auto" or settings.connections == "auto"):
+        # The pilot does not price merging yet: Veach's budget, merging added (or the
+        # light_paths / connections the user fixed).
+        return Budget(1.0 if settings.light_paths == "auto" else float(settings.light_paths),
+                      "all" if settings.connections == "auto" else settings.connections)
     if settings.light_paths == "auto" or settings.connections == "auto":
         return None
     return Budget(float(settings.light_paths), settings.connections,

@@ -121,7 +121,8 @@ def next_event(ctx, state, v, sample, active):
         bsdf_pdf_w = bsdf_pdf_w * dens_fwd
         contrib *= weights.nee(state.d_vcm, state.d_vc, state.lw, state.depth,
                                weights.specularity(v.bsdf.flags()), ds.delta, bsdf_pdf_w,
-                               nee_pdf_w, emission_pdf_aw, cos_cam, cos_light, bsdf_rev_w)
+                               nee_pdf_w, emission_pdf_aw, cos_cam, cos_light, bsdf_rev_w,
+                               v.surface)
     contrib = dr.select(active, finite(contrib), 0.0)
     if ctx.moments is not None:
         state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, contrib, *mis.groups_nee(
@@ -228,7 +229,7 @@ def connect_vertices(ctx, light, active, cam, v_c):
         pdf_l_a = pdf_l_w * cos_c / dist2 * dens_rev
         contrib *= weights.connect(light, cam.d_vcm, cam.d_vc, cam.depth, cam.lw,
                                    weights.specularity(v_c.bsdf.flags()),
-                                   pdf_c_a, rev_c_w, pdf_l_a, rev_l_w)
+                                   pdf_c_a, rev_c_w, pdf_l_a, rev_l_w, v_l.surface, v_c.surface)
     contrib = dr.select(active, finite(contrib), 0.0)
     groups = None
     if ctx.moments is not None:

@@ -30,6 +30,23 @@ as it joins a chain (``after_scatter``'s and the weights' ``m_vcm``: d_vcm at a
 subpath's first vertex stands for s = 1 or t = 1, beyond it for a connection) and
 divides the rivals of a connection (``weight_connect``'s ``m_self``).
 
+Vertex merging (``merging``, merge.py; tech. rep. sections 4-5, eqs. 20 and 34-40):
+a camera surface vertex z that scatters smoothly merges with the pass's stored light
+vertices y_i (i >= 1) within a radius r.  Merging at path vertex x_i has the density
+of the connection strategy with light vertices x_0..x_{i-1}, times the light's area
+density of x_i and the disc pi r^2 (eq. 17), at the rate N_L: every camera sample
+merges against all N_L light subpaths of its pass.  Its rate-weighted density
+relative to the connections is eta = pi r^2 N_L (eq. 20 with n_VC = 1, n_VM = N_L,
+the report's eta_VCM), whatever N_C, the light image's rate or kappa.  The report
+carries a third quantity d_vm; with connections on it is d_vc / eta, so here d_vc
+alone carries the merging terms: the "+ eta" of eq. 35 (SmallVCM's
+``mMisVmWeightFactor``) joins d_vc at every surface vertex that scatters smoothly,
+and each strategy adds eta for its own endpoints where they could merge (eqs. 38-41).
+Medium vertices connect but never merge (no eta term there); y_0 and z_0 never merge.
+The merge itself (``weight_merge``, eq. 37) divides both partial sums by eta, which
+is the report's d_vm = d_vc / eta.  Merging needs a ratio heuristic (power, balance,
+uniform): Lafortune's weights have no densities (settings.py refuses the pair).
+
 Consistency rules that make the weights of all strategies of a path sum to one
 (checked by tests/test_mis.py against a brute-force evaluation):
   * Russian roulette is left out of every pdf (the weights are then functions of the
@@ -81,6 +98,14 @@ def _div(a, b):
     """a / b with 0 where b is 0 or the result is not finite (no NaN enters a chain)."""
     r = a / b
     return dr.select((b != 0) & dr.isfinite(r), r, 0.0)
+
+
+def _plus_vm(h: Heuristic, x, m_vm):
+    """x + h(m_vm): a merging term, left out of the kernel where merging is off (a Python
+    0), so that BDPT's kernels stay what they were without merging."""
+    if isinstance(m_vm, (int, float)) and m_vm == 0:
+        return x
+    return x + h(m_vm)
 
 
 def _weight(denominator):
@@ -167,7 +192,7 @@ def after_escape(h: Heuristic, d_vcm, d_vc, dens_fwd, dens_rev):
 
 
 def after_scatter(h: Heuristic, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta,
-                  m_vcm=1.0):
+                  m_vcm=1.0, m_vm=0.0):
     """Account for the direction sampled at the current vertex (tech. rep. eqs. 35-36).
 
     ``pdf_fwd_w``: density of the sampled direction; ``pdf_rev_w``: density of the
@@ -175,8 +200,12 @@ def after_scatter(h: Heuristic, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delt
     from the new direction.  A delta lobe's pdfs cancel: d_vcm = 0 forbids
     connecting at this vertex and d_vc only picks up the cosine (section 6.1).
     ``m_vcm``: the rate of the strategy d_vcm stands for (module docstring).
+    ``m_vm``: eta where this vertex could merge (a surface vertex; merging on), else 0:
+    merging here is one more strategy behind the next vertex (tech. rep. eq. 35's
+    eta term; SmallVCM adds its ``mMisVmWeightFactor`` in the same place).
     """
-    d_vc_smooth = h(_div(cos_out, pdf_fwd_w)) * (d_vc * h(pdf_rev_w) + h(m_vcm) * d_vcm)
+    d_vc_smooth = h(_div(cos_out, pdf_fwd_w)) * _plus_vm(h, d_vc * h(pdf_rev_w)
+                                                         + h(m_vcm) * d_vcm, m_vm)
     d_vcm_smooth = h(_div(1.0, pdf_fwd_w))
     return (dr.select(delta, 0.0, d_vcm_smooth),
             dr.select(delta, d_vc * h(cos_out), d_vc_smooth))
@@ -198,28 +227,32 @@ def weight_emission_hit(h: Heuristic, d_vcm, d_vc, direct_pdf_a, emission_pdf):
 
 
 def weight_nee(h: Heuristic, d_vcm, d_vc, bsdf_pdf_w, nee_pdf_w, emission_pdf,
-               cos_cam, cos_light, bsdf_rev_w, m_vcm=1.0):
+               cos_cam, cos_light, bsdf_rev_w, m_vcm=1.0, m_vm=0.0):
     """s = 1: next-event estimation at camera vertex z_{t-1} (tech. rep. eqs. 44-45).
 
     ``bsdf_pdf_w``: density of the camera vertex's BSDF sampling the light direction
     (0 for delta lights: the s = 0 strategy cannot hit them).  ``nee_pdf_w``: the NEE
     density of that direction (pmf included).  ``cos_cam``/``cos_light``: cosines at
-    the camera vertex and at the emitter (1 for delta-position emitters).
+    the camera vertex and at the emitter (1 for delta-position emitters).  ``m_vm``:
+    eta where the camera vertex could merge with y_1 (eq. 45's eta term).
     """
     w_light = h(_div(bsdf_pdf_w, nee_pdf_w))
-    w_camera = h(_div(emission_pdf * cos_cam, nee_pdf_w * cos_light)) * (
-        h(m_vcm) * d_vcm + d_vc * h(bsdf_rev_w))
+    w_camera = h(_div(emission_pdf * cos_cam, nee_pdf_w * cos_light)) * _plus_vm(
+        h, h(m_vcm) * d_vcm + d_vc * h(bsdf_rev_w), m_vm)
     return _weight(w_light + 1.0 + w_camera)
 
 
-def weight_light_to_camera(h: Heuristic, d_vcm, d_vc, cam_pdf_a, bsdf_rev_w, m_vcm=1.0):
+def weight_light_to_camera(h: Heuristic, d_vcm, d_vc, cam_pdf_a, bsdf_rev_w, m_vcm=1.0,
+                           m_vm=0.0):
     """t = 1, s >= 2: light vertex y_{s-1} splatted through the pinhole (eq. 46).
 
     ``cam_pdf_a``: the camera's area density at the light vertex, already scaled by
     N_C / N_L (see ``camera_start``).  ``bsdf_rev_w``: density at y_{s-1} of sampling
-    the direction back to y_{s-2} had the path arrived from the camera.
+    the direction back to y_{s-2} had the path arrived from the camera.  ``m_vm``: eta
+    where y_{s-1} could merge with z_1 (eq. 46's eta term).
     """
-    return _weight(1.0 + h(cam_pdf_a) * (h(m_vcm) * d_vcm + d_vc * h(bsdf_rev_w)))
+    return _weight(1.0 + h(cam_pdf_a) * _plus_vm(h, h(m_vcm) * d_vcm + d_vc * h(bsdf_rev_w),
+                                                 m_vm))
 
 
 def weight_emitter_to_camera(h: Heuristic, cam_pdf_a, emission_pos_pdf_a):
@@ -232,17 +265,38 @@ def weight_emitter_to_camera(h: Heuristic, cam_pdf_a, emission_pos_pdf_a):
 
 def weight_connect(h: Heuristic, light_d_vcm, light_d_vc, cam_d_vcm, cam_d_vc,
                    cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w,
-                   m_light_vcm=1.0, m_cam_vcm=1.0, m_self=1.0):
+                   m_light_vcm=1.0, m_cam_vcm=1.0, m_self=1.0, m_light_vm=0.0,
+                   m_cam_vm=0.0):
     """s >= 2, t >= 2: connect y_{s-1} to z_{t-1} by a shadow ray (eqs. 40, 47).
 
     ``cam_bsdf_pdf_a``: density of z_{t-1}'s BSDF sampling y_{s-1} (area measure at
     y_{s-1}); ``light_bsdf_pdf_a`` likewise from y_{s-1} to z_{t-1}.  The ``*_rev_w``
     are each vertex's density of sampling its own predecessor had it arrived along
-    the connecting edge.  ``m_self``: the connection's own rate (kappa).
+    the connecting edge.  ``m_self``: the connection's own rate (kappa).  ``m_*_vm``:
+    eta where that endpoint could merge (eqs. 40-41's eta terms).
     """
-    w_light = h(cam_bsdf_pdf_a) * (h(m_light_vcm) * light_d_vcm + light_d_vc * h(light_bsdf_rev_w))
-    w_camera = h(light_bsdf_pdf_a) * (h(m_cam_vcm) * cam_d_vcm + cam_d_vc * h(cam_bsdf_rev_w))
+    w_light = h(cam_bsdf_pdf_a) * _plus_vm(
+        h, h(m_light_vcm) * light_d_vcm + light_d_vc * h(light_bsdf_rev_w), m_light_vm)
+    w_camera = h(light_bsdf_pdf_a) * _plus_vm(
+        h, h(m_cam_vcm) * cam_d_vcm + cam_d_vc * h(cam_bsdf_rev_w), m_cam_vm)
     return _weight(1.0 + _div(w_light + w_camera, h(m_self)))
+
+
+def weight_merge(h: Heuristic, light_d_vcm, light_d_vc, light_rev_w, cam_d_vcm, cam_d_vc,
+                 cam_rev_w, eta, m_light_vcm=1.0, m_cam_vcm=1.0):
+    """Merging light vertex y_i with camera vertex z_j (tech. rep. eqs. 37-39).
+
+    The merged path takes z_j's position and BSDF: ``light_rev_w`` is z_j's density of
+    sampling the light's incoming direction (toward y_{i-1}) had the path come from the
+    camera, i.e. its forward pdf (SmallVCM's ``cameraBsdfDirPdfW``); ``cam_rev_w`` its
+    density of sampling the camera's direction (toward z_{j-1}) had the path come from
+    the light (``cameraBsdfRevPdfW``).  Every rival's rate-weighted density over the
+    merge's eta p: the light side's connections and merges behind y_i, the camera
+    side's behind z_j, both over eta (the report's d_vm = d_vc / eta).
+    """
+    w_light = h(m_light_vcm) * light_d_vcm + light_d_vc * h(light_rev_w)
+    w_camera = h(m_cam_vcm) * cam_d_vcm + cam_d_vc * h(cam_rev_w)
+    return _weight(1.0 + _div(w_light + w_camera, h(eta)))
 
 
 # ---------------------------------------------------------------------------
@@ -323,13 +377,28 @@ class Weights:
         # Are there strategies beyond s <= 1?  Without them the chains stay 0 and the
         # densities that only feed them (reverse pdfs, emission densities) are not
         # computed: path tracing then costs what Mitsuba's path costs.
-        self.chains = self.on and (strategies.light_image or strategies.connects)
+        self.merging = self.on and strategies.merging
+        self.chains = self.on and (strategies.light_image or strategies.connects or self.merging)
         self.set_rates(1.0, 1.0)
+        self.set_merging(0.0)
 
     def set_rates(self, light_ratio: float, kappa: float) -> None:
         """This pass's N_L / N_C and connection rate (opaque: no kernel per value)."""
         self.light_ratio = dr.opaque(mi.Float, light_ratio)
         self.kappa = dr.opaque(mi.Float, kappa)
+
+    def set_merging(self, eta: float) -> None:
+        """This pass's merging rate eta = pi r^2 N_L (opaque: no kernel per radius)."""
+        self.eta = dr.opaque(mi.Float, eta)
+
+    def vm(self, surface=True):
+        """The merging term of a vertex: eta at a surface vertex with merging on (a
+        medium vertex never merges), else 0 (a Python 0 leaves it out of the kernels)."""
+        if not self.merging:
+            return 0.0
+        if surface is True:
+            return self.eta
+        return dr.select(surface, self.eta, 0.0)
 
     def rate(self, depth):
         """The rate of the strategy that d_vcm stands for at a subpath's vertex of this
@@ -349,9 +418,10 @@ class Weights:
     def after_escape(self, d_vcm, d_vc, dens_fwd, dens_rev):
         return after_escape(self.h, d_vcm, d_vc, dens_fwd, dens_rev)
 
-    def after_scatter(self, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta, depth):
+    def after_scatter(self, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta, depth,
+                      surface=True):
         return after_scatter(self.h, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta,
-                             self.rate(depth))
+                             self.rate(depth), self.vm(surface))
 
     @staticmethod
     def specularity(bsdf_flags, delta_sampled=False):
@@ -398,7 +468,7 @@ class Weights:
         return dr.select(directional, ds.pdf, pdf)
 
     def nee(self, d_vcm, d_vc, lw, depth, specularity, delta_light, bsdf_pdf_w, nee_pdf_w,
-            emission_pdf_aw, cos_cam, cos_light, bsdf_rev_w):
+            emission_pdf_aw, cos_cam, cos_light, bsdf_rev_w, surface=True):
         """s = 1 at camera vertex z_{t-1} (t - 1 = ``depth``); a delta light cannot be
         hit (s = 0)."""
         if not self.on:
@@ -407,15 +477,15 @@ class Weights:
             return weight_lafortune(lw, specularity, "nee", delta_light)
         return weight_nee(self.h, d_vcm, d_vc, dr.select(delta_light, 0.0, bsdf_pdf_w),
                           nee_pdf_w, emission_pdf_aw, cos_cam, cos_light, bsdf_rev_w,
-                          self.rate(depth))
+                          self.rate(depth), self.vm(surface))
 
-    def light_to_camera(self, d_vcm, d_vc, depth, cam_pdf_a, bsdf_rev_w):
+    def light_to_camera(self, d_vcm, d_vc, depth, cam_pdf_a, bsdf_rev_w, surface=True):
         """t = 1 at light vertex y_{s-1} (s - 1 = ``depth``); ``cam_pdf_a``: the
         camera's area density there.  The light image's rate is N_L / N_C."""
         if not self.on or self.light_first_hits:
             return mi.Float(1.0)
         return weight_light_to_camera(self.h, d_vcm, d_vc, cam_pdf_a / self.light_ratio,
-                                      bsdf_rev_w, self.rate(depth))
+                                      bsdf_rev_w, self.rate(depth), self.vm(surface))
 
     def emitter_to_camera(self, cam_pdf_a, pos_pdf_a):
         """(1,1), the light image at y_0."""
@@ -424,7 +494,8 @@ class Weights:
         return weight_emitter_to_camera(self.h, cam_pdf_a / self.light_ratio, pos_pdf_a)
 
     def connect(self, light, cam_d_vcm, cam_d_vc, cam_depth, lw, specularity,
-                cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w):
+                cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w,
+                light_surface=True, cam_surface=True):
         """s, t >= 2: stored light vertex ``light`` (y_{s-1}) to camera vertex
         z_{t-1} (t - 1 = ``cam_depth``)."""
         if not self.on:
@@ -433,7 +504,17 @@ class Weights:
             return weight_lafortune(lw, specularity, "connect")
         return weight_connect(self.h, light.d_vcm, light.d_vc, cam_d_vcm, cam_d_vc,
                               cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w,
-                              self.rate(light.s - 1), self.rate(cam_depth), self.kappa)
+                              self.rate(light.s - 1), self.rate(cam_depth), self.kappa,
+                              self.vm(light_surface), self.vm(cam_surface))
+
+    def merge(self, light, cam_d_vcm, cam_d_vc, cam_depth, light_rev_w, cam_rev_w):
+        """Merging stored light vertex ``light`` (y_i, i = s - 1) at camera vertex z_j
+        (j = ``cam_depth``), both surfaces; ``*_rev_w`` as in ``weight_merge``.  Weight 1
+        where merging is the only strategy (``ppm``)."""
+        if not self.merging:
+            return mi.Float(1.0)
+        return weight_merge(self.h, light.d_vcm, light.d_vc, light_rev_w, cam_d_vcm, cam_d_vc,
+                            cam_rev_w, self.eta, self.rate(light.s - 1), self.rate(cam_depth))
 
     def first_light_vertex(self, d_vc0, nee_pdf_a, nee_pdf_w, infinite, emission_pdf_aw,
                            dist2, cos_hit, dens_fwd=1.0, dens_rev=1.0):

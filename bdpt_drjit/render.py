@@ -4,6 +4,8 @@
         camera rays        camera.Camera.sample_rays     one lane per pixel sample
         light subpaths     walk.trace_light_subpaths     y_i stored for connections,
                                                          t = 1 splats (splat.py)
+        hash grid          merge.HashGrid.build          merging only: the stored
+                                                         light vertices by cell
         camera subpaths    walk.trace_camera_subpaths    s = 0, s = 1 and s, t >= 2
                                                          (connect.py)
         film               film.FilmAccumulator          camera block, then splats
@@ -16,6 +18,7 @@ pixels at 1 sample for very large films.  Peak memory does not grow with spp.
 """
 from __future__ import annotations
 
+import math
 import sys
 import time
 from dataclasses import dataclass, field, replace
@@ -36,7 +39,8 @@ from . import units
 from .units import UnitCosts
 from .budgets import BDPT, PATH_TRACING, Budget, fixed_budget
 from .optimizer import MIN_SPP, MomentSample, MomentSamples, Pilot, luminance
-from .strategies import StrategyImages, StrategySet
+from .strategies import MERGE_LAYER, StrategyImages, StrategySet
+from . import merge
 from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore, gather
 from .walk import path_tracer_walk, trace_camera_subpaths, trace_light_subpaths
 
@@ -78,6 +82,8 @@ class PassContext:
     pixel: mi.UInt32 = None            # each camera lane's crop pixel (moments)
     moments: MomentSamples | None = None   # a moment pass's contributions (optimizer.py)
     mis_rates: tuple = (1.0, 1.0)      # N_L / N_C and kappa of the MIS weights
+    grid: merge.HashGrid | None = None  # merging: the pass's light vertices (merge.py)
+    merge_radius: float = 0.0          # merging: this pass's radius r_i
 
     def light_subpath(self, lane):
         """The light subpath camera lane ``lane`` connects to (i mod N_L)."""
@@ -115,7 +121,7 @@ class RenderResult:
     rays: int = 0
     stats: dict = field(default_factory=dict)
     aov_names: list = field(default_factory=list)   # the last channels' names (aovs.py)
-
+    merge_image: np.ndarray | None = None   # merging with strategy images: every merge
     @property
     def channels(self) -> list:
         """The image's channel names: the film's (``exr.channel_names``), then AOVs'."""
@@ -275,6 +281,13 @@ class Renderer:
         film = self.sensor.film()
         grid = camera_stage.film_grid(film)
         self.pixels = int(grid[0]) * int(grid[1])
+        if self.settings.merging and mi.is_spectral:
+            raise ValueError("bdpt: merging is not supported in spectral variants: a light "
+                             "vertex's throughput holds its own subpath's wavelengths, which "
+                             "the camera samples merging with it do not share")
+        # Merging: the first pass's radius (merge.py); 0 without merging.
+        self.merge_radius = (merge.first_radius(scene, self.sensor, self.settings.radius)
+                             if self.settings.merging else 0.0)
         self.spp = int(spp) if spp else self.sensor.sampler().sample_count()
         if self.spp <= 0:
             raise ValueError("bdpt: spp must be positive, got %d" % self.spp)
@@ -308,6 +321,9 @@ class Renderer:
         lane_bytes = (_LANE_BYTES + _VERTICES_PER_LANE * RECORD_BYTES
                       + _SPLATS_PER_LANE * SPLAT_BYTES + len(layers) * 16)
         max_lanes = min(max(1024, self.settings.memory_budget // lane_bytes), 2 ** 31)
+        if self.settings.merging and not self.settings.samples_per_pass:
+            # The radius shrinks per pass (merge.py): passes of a few samples per pixel.
+            max_lanes = min(max_lanes, max(merge.PASS_LANES, self.pixels))
         self.plan = plan_passes(self.spp, self.pixels, max_lanes, self.settings.samples_per_pass,
                                 self._accepted_count)
         self.pilot, self._stride, self._path_tracer = None, {}, None
@@ -463,6 +479,10 @@ class Renderer:
         # subpath of the last pass (the weights need a value before the light walk).
         rates = (n_light / lanes, budget.kappa(n_light, n_light * self._vertices_per_path))
         weights.set_rates(*rates)
+        radius = 0.0
+        if strategies.merging and n_light > 0:      # merging at rate pi r_i^2 N_L (mis.py)
+            radius = merge.pass_radius(self.merge_radius, self.settings.radius_alpha, index)
+            weights.set_merging(math.pi * radius * radius * n_light)
         every = 1 if index < Pilot.PASSES else 2 * spp    # a later moment pass: see above
         images = StrategyImages(self.strategies, lanes) if self.strategy_images else None
         return PassContext(
@@ -474,7 +494,8 @@ class Renderer:
             light_count=n_light, pick_offset=dr.opaque(mi.Float, _unit(self.seed, index)),
             noise_key=dr.opaque(mi.UInt32, _mix_seed(self.seed, index, 2) & 0xFFFFFFFF),
             images=images, pixel=rays.pixel,
-            moments=MomentSamples(lanes, every) if moments else None, mis_rates=rates)
+            moments=MomentSamples(lanes, every) if moments else None, mis_rates=rates,
+            merge_radius=radius)
 
     def _render_pass(self, index, pixel_offset, n_pixels, spp, lanes):
         if (self._path_tracer is not None and index >= Pilot.PASSES
@@ -493,6 +514,8 @@ class Renderer:
 
         # Stage 2: light subpaths: stored light vertices and t = 1 splats.
         store, light_rays = self._light_subpaths(ctx, index, spp)
+        if ctx.merge_radius > 0 and store is not None:
+            ctx.grid = merge.HashGrid.build(store, ctx.merge_radius, ctx.light_count)
         light_seconds = timer.lap()
 
         # Stage 3: camera subpaths, with every strategy t >= 2.
@@ -650,7 +673,10 @@ class Renderer:
         tensor = self.tensor()
         layers = self.film.develop_layers() if self.strategy_images else {}
         return RenderResult(image=tensor.numpy(), tensor=tensor, aov_names=self.film.aov_names,
-                            strategy_images={k: v.numpy() for k, v in layers.items() if k[0] != "k"},
+                            strategy_images={k: v.numpy() for k, v in layers.items()
+                                             if k[0] not in ("k", "vm")},
+                            merge_image=(layers[MERGE_LAYER].numpy() if MERGE_LAYER in layers
+                                         else None),
                             length_images={k[1]: v.numpy() for k, v in layers.items() if k[0] == "k"},
                             spp=int(self.spp_done + 1e-9), passes=self.passes_done, time=self.time,
                             rays=self.rays, kernel_history=list(self.kernel_history),

@@ -18,7 +18,11 @@ HEURISTICS = ("power", "balance", "uniform", "lafortune")
 # Strategy subsets of the same engine, to show what MIS buys: "pt" = path tracing
 # with next-event estimation (s <= 1, MIS between the two), "lt" = light tracing
 # (t = 1: one strategy per path length, weight 1).
-STRATEGY_SUBSETS = ("all", "pt", "lt")
+# "ppm" = progressive photon mapping: merging alone (merge.py), at the first camera
+# vertex that scatters smoothly, and emitters seen through delta lobes only.
+STRATEGY_SUBSETS = ("all", "pt", "lt", "ppm")
+# Heuristics that merging (vertex merging, merge.py) can join: the ratio heuristics.
+MERGING_HEURISTICS = ("power", "balance", "uniform")
 FIRST_HITS = ("auto", "all", "light_image")
 DEFAULT_MEMORY_BUDGET = 2 * 1024 ** 3
 
@@ -67,6 +71,18 @@ PARAMS = (
     Param("strategy_subset", str, "all", "``all``; ``pt`` = path tracing with next-event "
           "estimation only (s <= 1), ``lt`` = light tracing only (t = 1): the same engine "
           "without MIS's other strategies.", choices=STRATEGY_SUBSETS),
+    Param("merging", bool, False, "Vertex merging (VCM, Georgiev et al. 2012): every camera "
+          "surface vertex that scatters smoothly also merges with the pass's light vertices "
+          "within ``radius``, as one more set of MIS strategies.  Consistent, not unbiased "
+          "(the bias shrinks with the radius over passes); medium vertices connect but do "
+          "not merge.  The ``vcm`` integrator is ``bdpt`` with merging on."),
+    Param("radius", str, "auto", "Merging radius of the first pass, in world units; "
+          "``auto`` (or 0): 1.5 pixel footprints at the distance of the scene's centre "
+          "(SmallVCM's default, 0.003 x the scene's radius, is about 1 of them in the "
+          "Cornell box at 512x512)."),
+    Param("radius_alpha", float, 0.75, "Radius reduction of progressive merging: pass i "
+          "(1-based) merges within r_1 i^((alpha - 1) / 2); 1 keeps the radius fixed "
+          "(then merging is biased, not consistent)."),
     Param("light_paths", str, "auto", "Light subpaths per camera sample (a number >= 0; "
           "0 = path tracing with next-event estimation), or ``auto``: chosen for "
           "efficiency from pilot passes, their counted work priced by the machine's unit "
@@ -164,7 +180,23 @@ def parse_connections(value):
     return count
 
 
+def parse_radius(value) -> float:
+    """``radius``: "auto" (0) or a length >= 0."""
+    if str(value) == "auto":
+        return 0.0
+    try:
+        r = float(value)
+    except (TypeError, ValueError):
+        r = -1.0
+    if not r >= 0 or r == float("inf"):
+        raise ValueError("bdpt: radius must be 'auto' or a length >= 0 (world units), got %r"
+                         % (value,))
+    return r
+
+
 def _convert(p: Param, value):
+    if p.name == "radius":
+        return parse_radius(value)
     if p.name == "technique":
         return parse_technique(value)
     if p.name == "light_paths":
@@ -181,7 +213,8 @@ def _convert(p: Param, value):
         value = p.kind(value)
     except (TypeError, ValueError):
         raise ValueError("bdpt: %s must be a%s %s, got %r" % (
-            p.name, "n" if p.kind is int else "", p.kind.__name__, value)) from None
+            p.name, "n" if p.kind is int else "",
+            "number" if p.kind is float else p.kind.__name__, value)) from None
     if p.choices is not None and value not in p.choices:
         raise ValueError("bdpt: unknown %s %r for %s (choose one of %s)"
                          % ("heuristic" if p.name == "mis" else "value", value, p.name,
@@ -201,6 +234,9 @@ class Settings:
     hide_emitters: bool = PARAM["hide_emitters"].default
     technique: tuple | None = None
     strategy_subset: str = PARAM["strategy_subset"].default
+    merging: bool = PARAM["merging"].default
+    radius: object = PARAM["radius"].default
+    radius_alpha: float = PARAM["radius_alpha"].default
     light_paths: object = PARAM["light_paths"].default
     connections: object = PARAM["connections"].default
     first_hits: str = PARAM["first_hits"].default
@@ -215,6 +251,10 @@ class Settings:
             self.light_image = False
         if self.strategy_subset == "pt":
             self.light_image = False
+        if self.strategy_subset == "ppm":     # merging alone
+            self.merging, self.light_image = True, False
+        if self.merging:
+            self._check_merging()
         if self.strategy_subset == "lt" and not self.light_image:
             raise ValueError("bdpt: strategy_subset='lt' (light tracing) needs light_image")
         if self.technique is not None:
@@ -228,6 +268,27 @@ class Settings:
         if self.first_hits == "light_image" and (not self.light_image or self.light_paths == 0):
             raise ValueError("bdpt: first_hits='light_image' needs the light image "
                              "(light_image = true and light_paths > 0)")
+
+    def _check_merging(self):
+        """What merging cannot be combined with, said plainly."""
+        if not 0.0 < self.radius_alpha <= 1.0:
+            raise ValueError("bdpt: radius_alpha must be in (0, 1], got %g" % self.radius_alpha)
+        if self.mis not in MERGING_HEURISTICS:
+            raise ValueError("bdpt: merging needs a ratio heuristic (%s): mis '%s' has no "
+                             "densities, so merged paths would have no weight"
+                             % (", ".join(MERGING_HEURISTICS), self.mis))
+        if self.technique is not None:
+            raise ValueError("bdpt: technique renders one (s,t) strategy; merging is not one "
+                             "of them (turn merging off)")
+        if self.strategy_subset in ("pt", "lt"):
+            raise ValueError("bdpt: strategy_subset '%s' has no merging (turn merging off, "
+                             "or use strategy_subset 'ppm' for merging alone)"
+                             % self.strategy_subset)
+        if self.light_paths == 0:
+            raise ValueError("bdpt: merging needs light subpaths (light_paths > 0)")
+        if self.first_hits == "light_image":
+            raise ValueError("bdpt: first_hits='light_image' leaves smooth first hits to the "
+                             "light image; merging needs them (leave first_hits 'auto')")
 
     def _forced_budget_reason(self) -> str | None:
         """What fixes the budgets (budgets.py), if anything: a single technique, a
@@ -276,7 +337,7 @@ def rst_table() -> str:
     lines = [".. list-table::", "   :header-rows: 1", "", "   * - Parameter", "     - Type",
              "     - Description"]
     for p in PARAMS:
-        kind = {int: "integer", bool: "boolean", str: "string"}[p.kind]
+        kind = {int: "integer", bool: "boolean", str: "string", float: "float"}[p.kind]
         lines += ["   * - %s" % p.name, "     - %s" % kind,
                   "     - %s (Default: %s)" % (p.doc, p.default_text)]
     return "\n".join(lines)

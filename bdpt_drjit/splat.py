@@ -43,7 +43,8 @@ def light_vertex_to_camera(ctx, store, v, vertex, sample, active) -> mi.UInt32:
     # importance * cos (tech. rep. eq. 46), times the density of the camera ray's
     # distances through media.
     cam_pdf_a = cam.importance * cos_out * dens_rev
-    contrib *= ctx.weights.light_to_camera(vertex.d_vcm, vertex.d_vc, vertex.s - 1, cam_pdf_a, rev_w)
+    contrib *= ctx.weights.light_to_camera(vertex.d_vcm, vertex.d_vc, vertex.s - 1, cam_pdf_a, rev_w,
+                                           v.surface)
     u_pt, u_lt = (0.0, 0.0) if ctx.moments is None else _light_image_groups(
         ctx, mis.groups_light_image(vertex.d_vcm, vertex.d_vc, vertex.d_end, vertex.s == 2,
                                     cam_pdf_a, rev_w, ctx.weights.light_ratio,

@@ -22,6 +22,7 @@ from .settings import Settings
 # to DEEP_K, then one for every longer path (an EXR reader's channel limit is 1024).
 LAYER_K = 8
 DEEP_K = 16
+MERGE_LAYER = ("vm", 0)      # every merge (merge.py), whatever its path length
 
 
 class StrategySet:
@@ -46,6 +47,10 @@ class StrategySet:
                              "vertex can be connected to)")
         self.hide_emitters = settings.hide_emitters
         self.has_emitters = has_emitters
+        # Vertex merging (merge.py): camera surface vertices merge with stored light
+        # vertices y_i, i >= 1; "ppm" merges alone, at a camera path's first smooth vertex.
+        self.merging = bool(settings.merging) and has_emitters and budget.light_ratio > 0
+        self.ppm = self.subset == "ppm"
 
     # -- which strategies are on ---------------------------------------------------
     def enabled(self, s, t):
@@ -62,6 +67,8 @@ class StrategySet:
             conds += [s <= 1, t >= 2]
         elif self.subset == "lt":
             conds.append(t == 1)
+        elif self.subset == "ppm":          # emitters seen through delta lobes only
+            conds.append(s == 0)
         if not self.light_image:
             conds.append(t >= 2)
         if not self.connects:
@@ -76,7 +83,7 @@ class StrategySet:
     @property
     def use_mis(self) -> bool:
         """MIS weights apply unless one strategy per path length is left."""
-        return self.technique is None and self.subset != "lt"
+        return self.technique is None and self.subset not in ("lt", "ppm")
 
     def max_camera_vertices(self) -> int | None:
         """The deepest camera vertex z_j (j = t - 1) any strategy uses; None: unbounded.
@@ -97,25 +104,44 @@ class StrategySet:
             return s - 1 if (s >= 2 or (s == 1 and t == 1)) else -1
         if self.subset == "pt" or self.budget.light_ratio <= 0:
             return -1
-        if not (self.light_image or self.connects):
+        if not (self.light_image or self.connects or self.merging):
             return -1
         if self.max_depth < 0:
             return None
-        return self.max_depth - (1 if self.light_image else 2)
+        return self.max_depth - (1 if self.light_image or self.merging else 2)
 
     def stores(self, s):
         """Must light vertex y_{s-1} be stored: is some (s, t >= 2) on?"""
         if self.technique is not None:
             return (s == self.technique[0]) & (self.technique[1] >= 2) & (s >= 2)
+        merged = self.merges(s - 1, 1)
         if self.subset != "all" or not self.connects:
+            return merged
+        connected = self.enabled(s, 2) & (s >= 2)
+        return connected if merged is False else connected | merged
+
+    def merges(self, i, j):
+        """Can light vertex y_i merge with camera vertex z_j (a path of i + j edges;
+        ints or Dr.Jit integers)?  y_0 (on the emitter) and z_0 (the camera) never do."""
+        if not (self.merging and self.has_emitters):
             return False
-        return self.enabled(s, 2) & (s >= 2)
+        ok = (i >= 1) & (j >= 1)
+        if self.max_depth >= 0:
+            ok = ok & (i + j <= self.max_depth)
+        return ok
 
     def add(self, images, radiance, lane, s, t, value):
         """radiance + value, and value into (s, t)'s strategy-image layer if ``images``."""
         if images is not None:
             images.add(lane, s, t, value)
         return type(radiance)(radiance + value)
+
+    def add_merge(self, images, radius, lane, value):
+        """radius + value of the merges at a camera vertex (into the "vm" layer if
+        ``images``: merges of every path length together)."""
+        if images is not None:
+            images.add_layer(lane, images.merge_layer, value)
+        return type(radius)(radius + value)
 
     # -- strategy images -------------------------------------------------------------
     def layers(self) -> list:
@@ -125,7 +151,8 @@ class StrategySet:
         top = self.max_depth if self.max_depth >= 0 else DEEP_K + 1
         out = [(s, k + 1 - s) for k in range(1, min(top, LAYER_K) + 1) for s in range(k + 1)
                if self.enabled(s, k + 1 - s)]
-        return out + [("k", k) for k in range(LAYER_K + 1, min(top, DEEP_K + 1) + 1)]
+        out += [("k", k) for k in range(LAYER_K + 1, min(top, DEEP_K + 1) + 1)]
+        return out + ([MERGE_LAYER] if self.merging else [])
 
     def layer_table(self) -> mi.Int32:
         """Layer index by (k, s): k * (LAYER_K + 1) + s for k <= LAYER_K, then
@@ -153,8 +180,14 @@ class StrategyImages:
     def __init__(self, strategies: StrategySet, lanes: int):
         self.table = strategies.layer_table()
         self.lanes = lanes
-        self.values = dr.zeros(mi.Spectrum, lanes * len(strategies.layers()))
+        layers = strategies.layers()
+        self.values = dr.zeros(mi.Spectrum, lanes * len(layers))
         self._lanes = dr.opaque(mi.UInt32, lanes)
+        self.merge_layer = layers.index(MERGE_LAYER) if MERGE_LAYER in layers else None
+
+    def add_layer(self, lane, layer: int, value):
+        dr.scatter_reduce(dr.ReduceOp.Add, self.values, value,
+                          dr.opaque(mi.UInt32, layer) * self._lanes + lane)
 
     def add(self, lane, s, t, value):
         layer = dr.gather(mi.Int32, self.table, StrategySet.layer_slot(s, t))

@@ -189,6 +189,11 @@ class Vertex:
         return self.si.spawn_ray_to(p)
 
     @property
+    def surface(self):
+        """A surface vertex (True), not a point in a medium: only these merge."""
+        return ~self.in_medium if self.media else True
+
+    @property
     def smooth(self):
         """A connection can be made here (no delta lobes alone)."""
         smooth = mi.has_flag(self.bsdf.flags(), mi.BSDFFlags.Smooth)

@@ -5,7 +5,11 @@
     camera walk, per depth j: intersect z_j -> s = 0 (emitter or environment hit)
                               -> MIS to area measure -> s = 1 (next event)
                               -> s, t >= 2 (z_j to the lane's stored light vertices)
-                              -> scatter -> roulette
+                              -> merges (``merging``: z_j with every stored light
+                                 vertex within r, merge.py) -> scatter -> roulette
+
+``strategy_subset`` ``ppm`` (merging alone) ends a camera subpath at the first vertex
+where it scatters smoothly: that vertex's merges render the rest.
 
 A budget that leaves first hits to the light image (budgets.Budget.light_first_hits)
 evaluates nothing at z_1 and ends every camera subpath whose z_1 scatters smoothly.
@@ -30,7 +34,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from . import connect, mis, splat
+from . import connect, merge, mis, splat
 from .surface import IMPORTANCE, RADIANCE, Vertex, VertexRecord, adjoint_correction, spectrum_nonzero
 from .vertices import NONE, LightVertex
 
@@ -213,11 +217,17 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
         if ctx.emitters.count:
             _add(ctx, state, 1, t, *connect.next_event(
                 ctx, state, v, u.endpoint, connectible & ctx.strategies.enabled(1, t)))
-        if store is not None:
+        if store is not None and ctx.strategies.connects:
             state.radiance, rays = connect.stored_vertices(ctx, store, state, v, connectible)
             state.rays += rays
+        if ctx.grid is not None:                # vertex merging (merge.py)
+            merged = merge.merge_at(ctx, store, state, v, merge.can_merge(
+                ctx.strategies, v, state.depth, connectible))
+            state.radiance = ctx.strategies.add_merge(ctx.images, state.radiance, ctx.lane, merged)
         goes_on = walking if max_j is None else walking & (state.depth < max_j)
         delta = _scatter(ctx, state, v, u, goes_on, importance=False)
+        if ctx.strategies.ppm:                  # merged at its first smooth vertex
+            state.active &= delta
         state.specular_z1 |= first & delta
         if ctx.strategies.light_first_hits:     # past z_1 only through a delta lobe
             state.active &= ~first | delta
@@ -313,7 +323,8 @@ def _scatter(ctx, state: PathState, v: Vertex, u: DepthSamples, active, importan
         state.d_end = mis.end_after_scatter(state.d_end, state.d_vcm, state.d_vc, cos_out, bs.pdf,
                                             pdf_rev_w, delta, state.depth == 1, importance)
     state.d_vcm, state.d_vc = ctx.weights.after_scatter(state.d_vcm, state.d_vc, cos_out,
-                                                        bs.pdf, pdf_rev_w, delta, state.depth)
+                                                        bs.pdf, pdf_rev_w, delta, state.depth,
+                                                        v.surface)
     state.beta = mi.Spectrum(state.beta * weight)       # (spectral arithmetic may
     state.rr_beta = mi.Spectrum(state.rr_beta * weight) # give a plain Array4f)
     state.eta *= bs.eta

@@ -40,6 +40,12 @@ weights must be a function of the path).  The camera's medium is the sensor's
 ``medium`` (checked against where its rays start); light subpaths start in the medium
 an emitter declares, or that its shape's media say, or that surrounds it.
 
+Vertex merging (``merging``; the ``vcm`` plugin is ``bdpt`` with it on,
+``integrators/vcm.py``): every camera surface vertex that scatters smoothly also merges
+with the pass's light vertices within ``radius``, one more set of MIS strategies.
+Consistent, not unbiased (the radius shrinks over passes by ``radius_alpha``); without
+it (the default) bdpt is unbiased.
+
 {params}
 
 Supported: the ``perspective``, ``thinlens`` and ``orthographic`` sensors; ``area``,
@@ -102,13 +108,16 @@ def seed_value(seed) -> int:
     return int(seed)
 
 
-def _make_class(base: type) -> type:
-    """The plugin class, derived from one variant's ``mi.SamplingIntegrator``."""
+def _make_class(base: type, defaults: dict | None = None, doc: str = __doc__,
+                name: str = "BDPTIntegrator") -> type:
+    """The plugin class, derived from one variant's ``mi.SamplingIntegrator``;
+    ``defaults``: settings it has unless the properties say otherwise (``vcm``'s
+    merging)."""
 
     class BDPTIntegrator(base):
         def __init__(self, props: mi.Properties):
             super().__init__(props)
-            self.settings = _settings_from(props)
+            self.settings = {**(defaults or {}), **_settings_from(props)}
             Settings(**self.settings)          # fail at load time on bad values
 
         def render(self, scene: mi.Scene, sensor=0, seed=0, spp: int = 0,
@@ -135,9 +144,10 @@ def _make_class(base: type) -> type:
             return aovs.channel_names(aovs.parse(self.settings.get("aovs", "")))
 
         def to_string(self):
-            return "BDPTIntegrator[%s]" % ", ".join("%s=%r" % kv for kv in self.settings.items())
+            return "%s[%s]" % (name, ", ".join("%s=%r" % kv for kv in self.settings.items()))
 
-    BDPTIntegrator.__doc__ = __doc__
+    BDPTIntegrator.__doc__ = doc
+    BDPTIntegrator.__name__ = BDPTIntegrator.__qualname__ = name
     return BDPTIntegrator
 
 
@@ -156,6 +166,8 @@ def __getattr__(name):
 
 
 def register() -> None:
-    """Register ``bdpt`` for the current variant."""
+    """Register ``bdpt`` (and ``vcm``, integrators/vcm.py) for the current variant."""
     cls = integrator_class()
     mi.register_integrator("bdpt", lambda props: cls(props))
+    from integrators.vcm import register as register_vcm
+    register_vcm()

@@ -102,3 +102,16 @@ def test_furnace_shallow_depths(furnace, max_depth):
 def test_furnace_unbounded(furnace):
     """max_depth = -1: Russian roulette ends the paths; the series sums to Le/(1-r)."""
     check_furnace(furnace, seeds=6, spp=64, max_depth=-1)
+
+
+@pytest.mark.parametrize("mis", ["power", "balance", "uniform"])
+def test_furnace_with_merging(furnace, mis):
+    """VCM (merging beside every connection): the photon density on the sphere is
+    uniform, and a ball of radius r cuts from a sphere a cap of area pi r^2 exactly,
+    so merging has no kernel bias here: any error is in its weights or normalization."""
+    check_furnace(furnace, max_depth=4, mis=mis, merging=True, radius=0.05)
+
+
+def test_furnace_progressive_photon_mapping(furnace):
+    """strategy_subset 'ppm': merging alone, at each camera path's first smooth vertex."""
+    check_furnace(furnace, max_depth=4, strategy_subset="ppm", radius=0.05)

@@ -46,6 +46,7 @@ def random_path(rng, k, delta_prob=0.3, point_light_prob=0.3):
     P["lens_a"] = rng.uniform(0.5, 50.0, N)                # thin lens: 1 / (pi r^2)
     P["dens_fwd"] = np.ones((N, k))     # distance density along edge i from x_i
     P["dens_bwd"] = np.ones((N, k))     # ... and from x_{i+1}
+    P["medium"] = np.zeros((N, k + 1), bool)   # medium vertices (add_media): never merged
     return P
 
 
@@ -58,6 +59,7 @@ def add_media(rng, P, k):
     medium &= ~P["delta"]
     P["cos_fwd"] = np.where(medium[:, :k], 1.0, P["cos_fwd"])
     P["cos_bwd"] = np.where(medium[:, 1:], 1.0, P["cos_bwd"])
+    P["medium"] = medium
     return P
 
 
@@ -112,8 +114,32 @@ def rate(k, s, r, kappa):
     return r if t == 1 else (1.0 if s <= 1 else kappa)
 
 
-def chain_weights(P, k, h, light_image, r=1.0, kappa=1.0):
-    """Weights of all strategies as the engine computes them (mis.py)."""
+def merge_valid(P, k, i, eta):
+    """Can the path be made by merging at x_i: a surface vertex (not in a medium) that
+    scatters smoothly, neither on the emitter nor on the camera, merging on."""
+    if eta <= 0 or not 1 <= i <= k - 1:
+        return np.zeros(N, bool)
+    return ~P["delta"][:, i] & ~P["medium"][:, i]
+
+
+def brute_force_merge_pdf(P, k, i, eta, lens=False):
+    """Merging at x_i (tech. rep. eq. 17, rate included): x_0 .. x_i sampled by the
+    light subpath (x_0 by its emission position density), x_i .. x_{k-1} by the camera
+    subpath, so x_i twice, times eta = pi r^2 N_L."""
+    p = eta * (np.array(P["lens_a"]) if lens else np.ones(N)) * P["e_pos"]
+    for l in range(1, i + 1):
+        p = p * (P["pdf_l"][:, l - 1] * P["cos_bwd"][:, l - 1] / P["dist2"][:, l - 1]
+                 * P["dens_fwd"][:, l - 1])
+    for l in range(i, k):
+        pdf_w = P["cam_w"] if l == k - 1 else P["pdf_e"][:, l + 1]
+        p = p * pdf_w * P["cos_fwd"][:, l] / P["dist2"][:, l] * P["dens_bwd"][:, l]
+    return p
+
+
+def chain_weights(P, k, h, light_image, r=1.0, kappa=1.0, eta=0.0):
+    """Weights of all strategies as the engine computes them (mis.py); with ``eta`` > 0
+    also the merges, as ``w[("vm", i)]`` for merging at x_i."""
+    vm = lambda i: F(np.where(P["medium"][:, i], 0.0, eta))     # noqa: E731
     emission_pdf = F(P["e_pos"] * P["pdf_l"][:, 0])
     # light subpath: states at x_1 .. x_{k-1}
     light = {}
@@ -128,7 +154,7 @@ def chain_weights(P, k, h, light_image, r=1.0, kappa=1.0):
         if i + 1 < k:
             d_vcm, d_vc = mis.after_scatter(h, d_vcm, d_vc, F(P["cos_fwd"][:, i]),
                                             F(P["pdf_l"][:, i]), F(P["pdf_e"][:, i]),
-                                            B(P["delta"][:, i]), m(i))
+                                            B(P["delta"][:, i]), m(i), vm(i))
             d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, i]), F(P["cos_bwd"][:, i]),
                                         F(fwd[:, i]), F(bwd[:, i]))
     # camera subpath: states at x_{k-1} .. x_0
@@ -141,7 +167,7 @@ def chain_weights(P, k, h, light_image, r=1.0, kappa=1.0):
         if i > 0:
             d_vcm, d_vc = mis.after_scatter(h, d_vcm, d_vc, F(P["cos_bwd"][:, i - 1]),
                                             F(P["pdf_e"][:, i]), F(P["pdf_l"][:, i]),
-                                            B(P["delta"][:, i]), m(k - i))
+                                            B(P["delta"][:, i]), m(k - i), vm(i))
             d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, i - 1]),
                                         F(P["cos_fwd"][:, i - 1]), F(bwd[:, i - 1]), F(fwd[:, i - 1]))
 
@@ -164,13 +190,13 @@ def chain_weights(P, k, h, light_image, r=1.0, kappa=1.0):
             w[s] = mis.weight_nee(h, dv[0], dv[1], F(bsdf_pdf * bwd[:, 0]), F(nee_w),
                                   emission_pdf * F(fwd[:, 0]),
                                   F(P["cos_bwd"][:, 0]), F(P["cos_fwd"][:, 0]), F(P["pdf_l"][:, 1]),
-                                  m(k - 1))
+                                  m(k - 1), vm(1))
         elif t == 1:
             lv = light[k - 1]
             cam_a = F(P["cam_w"] * P["cos_fwd"][:, k - 1] / P["dist2"][:, k - 1]
                       * bwd[:, k - 1] / r)
             w[s] = mis.weight_light_to_camera(h, lv[0], lv[1], cam_a, F(P["pdf_e"][:, k - 1]),
-                                              m(k - 1))
+                                              m(k - 1), vm(k - 1))
         else:
             lv, cv = light[s - 1], cam[s]
             cam_pdf_a = (P["pdf_e"][:, s] * P["cos_fwd"][:, s - 1] / P["dist2"][:, s - 1]
@@ -179,7 +205,11 @@ def chain_weights(P, k, h, light_image, r=1.0, kappa=1.0):
                            * fwd[:, s - 1])
             w[s] = mis.weight_connect(h, lv[0], lv[1], cv[0], cv[1], F(cam_pdf_a),
                                       F(P["pdf_l"][:, s]), F(light_pdf_a), F(P["pdf_e"][:, s - 1]),
-                                      m(s - 1), m(k - s), kappa)
+                                      m(s - 1), m(k - s), kappa, vm(s - 1), vm(s))
+    for i in range(1, k if eta > 0 else 1):
+        lv, cv = light[i], cam[i]
+        w[("vm", i)] = mis.weight_merge(h, lv[0], lv[1], F(P["pdf_e"][:, i]), cv[0], cv[1],
+                                        F(P["pdf_l"][:, i]), F(np.full(N, eta)), m(i), m(k - i))
     return {s: np.array(v, dtype=np.float64) for s, v in w.items()}
 
 
@@ -222,30 +252,64 @@ def test_media_weights_match_brute_force(heuristic, k, r, kappa):
 
 
 def check_against_brute_force(rng, heuristic, light_image, k, r, kappa, lens=False,
-                              media=False):
+                              media=False, eta=0.0):
     P = random_path(rng, k)
     if media:
         P = add_media(rng, P, k)
     h = mis.Heuristic(heuristic)
-    w = chain_weights(P, k, h, light_image, r, kappa)
+    w = chain_weights(P, k, h, light_image, r, kappa, eta)
     valid = {s: strategy_valid(P, k, s, light_image) & (rate(k, s, r, kappa) > 0)
              for s in range(k + 1)}
     pdfs = {s: brute_force_pdf(P, k, s, lens) * rate(k, s, r, kappa) for s in range(k + 1)}
+    for i in range(1, k if eta > 0 else 1):
+        valid["vm", i] = merge_valid(P, k, i, eta)
+        pdfs["vm", i] = brute_force_merge_pdf(P, k, i, eta, lens)
     hp = {s: np.where(valid[s], (pdfs[s] ** 2 if heuristic == "power" else
                                  pdfs[s] if heuristic == "balance" else 1.0), 0.0)
-          for s in range(k + 1)}
+          for s in pdfs}
     denom = sum(hp.values())
     total = np.zeros(N)
     any_valid = np.zeros(N, bool)
-    for s in range(k + 1):
+    for s in pdfs:
         ws = np.where(valid[s], w[s], 0.0)      # invalid strategies never contribute
         assert np.all(np.isfinite(ws))
         expected = np.where(valid[s], hp[s] / np.where(denom > 0, denom, 1), 0.0)
         np.testing.assert_allclose(ws, expected, rtol=1e-4, atol=1e-6,
-                                   err_msg="strategy s=%d, t=%d" % (s, k + 1 - s))
+                                   err_msg="merging at x_%d" % s[1] if isinstance(s, tuple)
+                                   else "strategy s=%d, t=%d" % (s, k + 1 - s))
         total += ws
         any_valid |= valid[s]
     np.testing.assert_allclose(total[any_valid], 1.0, atol=1e-4)
+
+
+# eta = pi r^2 N_L: small (merging rarely wins), about the connections' densities, large
+ETAS = [1e-3, 0.7, 40.0]
+
+
+@pytest.mark.parametrize("heuristic", ["power", "balance", "uniform"])
+@pytest.mark.parametrize("light_image", [True, False])
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 5, 6])
+@pytest.mark.parametrize("r, kappa", [(1.0, 1.0), (0.5, 0.3), (2.0, 0.0)])
+@pytest.mark.parametrize("eta", ETAS)
+def test_merging_weights_sum_to_one_and_match_brute_force(heuristic, light_image, k, r,
+                                                          kappa, eta):
+    """Vertex merging (VCM) as k - 1 more strategies of a path of k edges: merging at
+    every interior vertex that scatters smoothly, at rate eta, beside every
+    connection strategy at its own rate; delta vertices merge nowhere."""
+    check_against_brute_force(np.random.default_rng(900 * k + 17), heuristic, light_image,
+                              k, r, kappa, eta=eta)
+
+
+@pytest.mark.parametrize("heuristic", ["power", "balance"])
+@pytest.mark.parametrize("k", [2, 3, 4, 5])
+@pytest.mark.parametrize("eta", ETAS)
+def test_merging_weights_with_media_and_lens(heuristic, k, eta):
+    """Medium vertices connect but never merge; a thin lens's density cancels from
+    merges as from connections."""
+    check_against_brute_force(np.random.default_rng(40 * k + 1), heuristic, True, k, 1.0,
+                              1.0, media=True, eta=eta)
+    check_against_brute_force(np.random.default_rng(41 * k + 2), heuristic, True, k, 0.5,
+                              0.3, lens=True, eta=eta)
 
 
 @pytest.mark.parametrize("k", [1, 2, 3, 5])

@@ -106,8 +106,31 @@ def scene_info(args) -> list:
     lines.append("integrator: %s in the file (bdpt renders instead%s)" % (
         integrator_name, ", with " + ", ".join("%s=%s" % kv for kv in sorted(settings.items()))
         if settings else ""))
+    lines += _merging_lines(scene, settings)
     lines.append(_verdict(scene, args.sensor, settings, verdicts))
     return lines
+
+
+def _merging_lines(scene, settings: dict) -> list:
+    """What vertex merging (merge.py) will do, where the integrator asks for it."""
+    if not (settings.get("merging") or settings.get("strategy_subset") == "ppm") \
+            or not scene.sensors():
+        return []
+    from ..merge import first_radius
+    from ..settings import Settings
+    try:
+        s = Settings.from_dict(settings)
+    except ValueError:
+        return []            # the verdict line says why
+    from ..media import Media
+    try:
+        media = bool(scene.sensors()) and Media(scene, scene.sensors()[0]).present
+    except Exception:       # noqa: BLE001  (the verdict line reports a refused medium)
+        media = False
+    return ["merging:    on (vertex connection and merging): consistent, not unbiased; "
+            "radius r_1 = %.4g, alpha %g" % (first_radius(scene, scene.sensors()[0], s.radius), s.radius_alpha)
+            + ("; medium vertices connect but do not merge" if media else
+               "; (medium vertices would connect but not merge)")]
 
 
 def _channel_order(name: str):

@@ -58,6 +58,8 @@ class Outputs:
             from ..strategies import DEEP_K
             layers.update({"k%d%s" % (k, "+" if k > DEEP_K else ""): img
                            for k, img in sorted(res.length_images.items())})
+            if res.merge_image is not None:       # every merge (merging, merge.py)
+                layers["merge"] = res.merge_image
             jobs.append((self.layers_exr,
                          lambda p: write_layers(p, layers, meta, image=res.image)))
             if res.strategy_images:

@@ -90,7 +90,7 @@ def integrator_defaults(scene) -> tuple[dict, str]:
         return {}, "none"
     settings = getattr(integ, "settings", None)
     if isinstance(settings, dict):
-        return dict(settings), "bdpt"
+        return dict(settings), "vcm" if str(integ).startswith("VCM") else "bdpt"
     text = str(integ)
     out = {}
     m = re.search(r"\bmax_depth\s*=\s*(-?\d+)", text)

@@ -1,0 +1,246 @@
+"""Vertex merging (VCM's photon-mapping half): the pass's hash grid of light vertices,
+the merge estimator at camera vertices, and the progressive radius.
+
+Georgiev, Krivanek, Davidovic, Slusallek, "Light transport simulation with vertex
+connection and merging" (2012) and its technical report ("Implementing Vertex
+Connection and Merging", the tech. rep. of mis.py); SmallVCM's ``hashgrid.hxx`` and
+``vertexcm.hxx`` (RangeQuery) are the reference implementation, rewritten here as
+Dr.Jit arrays.
+
+Merging at camera vertex z_j with stored light vertex y_i within radius r (a path of
+i + j edges; surfaces only, y_0 and z_0 never) estimates (tech. rep. eq. 17 with a
+constant kernel 1 / (pi r^2))
+
+    C = beta_E(z_j) f_E(y_{i-1} <- z_j -> z_{j-1}) / |cos_g(z_j, w_y)| beta_L(y_i)
+        / (pi r^2 N_L) * w_merge
+
+over the N_L light subpaths of the pass: f_E is z_j's BSDF for the light's incoming
+direction w_y (Mitsuba's ``eval`` holds the shading cosine; the geometric cosine of
+the flux density divides it), beta_L the light subpath's throughput arriving at y_i.
+It is consistent, not unbiased: the kernel blurs over the disc, and the radius
+shrinks over passes, r_i = r_1 i^((alpha - 1) / 2) for pass i = 1, 2, ... (Knaus &
+Zwicker 2011; SmallVCM's schedule), so the bias vanishes as passes grow.
+
+The grid (SmallVCM's HashGrid, on the pool of stored light vertices, vertices.py):
+cells of side 2r hashed into as many buckets as the pool holds; per bucket a count
+(``dr.scatter_inc``, whose result is also each vertex's slot in its bucket), an
+exclusive prefix sum, and the pool's items scattered into bucket order.  A query
+visits the 8 cells that a sphere of radius r around z_j can touch, in one symbolic
+loop over (cell, item), and keeps only items whose own cell is the one visited: two
+of the 8 cells hashed into one bucket would otherwise count its items twice (SmallVCM
+does), and a hash collision's foreign items are skipped before their distance is
+read.  Radius, cell size, bucket count and normalization are opaque: no kernel is
+compiled per pass or per radius.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from .strategies import StrategySet
+from .surface import finite, spectrum_nonzero
+from .vertices import gather
+
+# The default first radius, in pixel footprints at the scene's centre.  SmallVCM's
+# default, 0.003 x the scene's bounding-sphere radius, is about 1 of them in
+# scenes/cornell-box.xml at 512x512 but 2 in benchmarks/scene_files/sds.xml (a floor far
+# wider than the view); scaled to small films it made merging there 30x slower (a query
+# visits every light vertex of 8 cells of side 2r).
+RADIUS_PIXELS = 1.5
+# Lanes of an automatic pass with merging (settings.samples_per_pass 0): the radius
+# shrinks from pass to pass, so passes stay small (SmallVCM's are 1 spp).
+PASS_LANES = 1 << 16
+
+
+def first_radius(scene: mi.Scene, sensor: mi.Sensor, radius: float) -> float:
+    """r_1: ``radius`` if set (> 0), else RADIUS_PIXELS pixel footprints at the
+    distance of the scene's bounding-sphere centre from the camera (two rays through
+    neighbouring pixels at the film's centre: any camera model)."""
+    if radius > 0:
+        return float(radius)
+    sphere = scene.bbox().bounding_sphere()
+    centre = _vec(sphere.center)
+    size = sensor.film().crop_size()
+    points = []
+    for dx in (0.0, 1.0):
+        u = mi.Point2f((0.5 * size[0] + dx) / size[0], 0.5)
+        ray, _ = sensor.sample_ray(0.0, 0.5, u, mi.Point2f(0.5))
+        o, d = _vec(ray.o), _vec(ray.d)
+        points.append(o + d * np.linalg.norm(centre - o))
+    footprint = float(np.linalg.norm(points[1] - points[0]))
+    scene_radius = float(_vec(sphere.radius)[0])
+    return max(RADIUS_PIXELS * footprint, 1e-5 * scene_radius, 1e-7)
+
+
+def _vec(v) -> np.ndarray:
+    """A scalar or width-1 Dr.Jit value as a flat float64 NumPy array."""
+    return np.ravel(np.array(v, dtype=np.float64))
+
+
+def pass_radius(r1: float, alpha: float, index: int) -> float:
+    """r_i = r_1 i^((alpha - 1) / 2) for the pass of 0-based ``index`` (i = index + 1)."""
+    return r1 * float(index + 1) ** ((alpha - 1.0) / 2.0)
+
+
+def _cell(p, inv_cell) -> mi.Vector3i:
+    return mi.Vector3i(dr.floor(p * inv_cell))
+
+
+def _bucket(cell: mi.Vector3i, buckets) -> mi.UInt32:
+    """SmallVCM's spatial hash of a cell (Teschner et al. 2003's primes)."""
+    c = mi.Vector3u(cell)
+    return ((c.x * 73856093) ^ (c.y * 19349663) ^ (c.z * 83492791)) % buckets
+
+
+@dataclass
+class Photon:
+    """What a merge reads of a stored light vertex y_i, copied in bucket order when
+    the grid is built: a query then reads neighbouring records (one cell's), and 12
+    values instead of the 22 of the vertex record it would otherwise gather."""
+    w: mi.Vector3f          # toward y_{i-1} (world)
+    beta: mi.Spectrum       # the light subpath's throughput arriving at y_i
+    d_vcm: mi.Float         # MIS chains (mis.py)
+    d_vc: mi.Float
+    s: mi.UInt32            # i + 1
+
+
+@dataclass
+class HashGrid:
+    """The pass's light vertices in cells of side 2r (see the module docstring)."""
+    order: mi.UInt32        # pool items, bucket after bucket
+    start: mi.UInt32        # per bucket: its first position in ``order``
+    count: mi.UInt32        # per bucket: its items
+    inv_cell: mi.Float      # 1 / (2 r)
+    radius2: mi.Float       # r^2
+    buckets: mi.UInt32      # the bucket count
+    norm: mi.Float          # 1 / (pi r^2 N_L)
+    points: mi.Point3f = None   # positions in bucket order
+    photons: Photon = None      # merge records in bucket order (render passes)
+
+    @staticmethod
+    def build(store, radius: float, light_subpaths: int, photons: bool = True) -> "HashGrid":
+        """The grid of ``store``'s vertices (vertices.LightVertexStore's pool) at radius r;
+        ``photons``: also copy their merge records (``Photon``) in bucket order."""
+        items = store.vertices.items
+        capacity = store.vertices.capacity
+        index = dr.arange(mi.UInt32, capacity)
+        size = dr.gather(mi.UInt32, store.vertices.count, dr.zeros(mi.UInt32, capacity))
+        # Every stored vertex that can merge: in the pool, on a surface.
+        ok = (index < dr.minimum(size, capacity)) & ~items.record.in_medium
+        buckets = dr.opaque(mi.UInt32, capacity)
+        inv_cell = dr.opaque(mi.Float, 0.5 / radius)
+        bucket = _bucket(_cell(items.record.p, inv_cell), buckets)
+        count = dr.zeros(mi.UInt32, capacity)
+        slot = dr.scatter_inc(count, bucket, ok)
+        dr.eval(slot, count)            # the counter's results, in the kernel that counts
+        start = dr.prefix_sum(count)    # exclusive
+        order = dr.zeros(mi.UInt32, capacity)
+        dr.scatter(order, index, dr.gather(mi.UInt32, start, bucket, ok) + slot, ok)
+        dr.eval(order)
+        grid = HashGrid(order=order, start=start, count=count, inv_cell=inv_cell,
+                        radius2=dr.opaque(mi.Float, radius * radius), buckets=buckets,
+                        norm=dr.opaque(mi.Float, 1.0 / (math.pi * radius * radius
+                                                        * max(light_subpaths, 1))),
+                        points=dr.gather(mi.Point3f, items.record.p, order))
+        if photons:
+            rec = gather(items.record, order)
+            grid.photons = Photon(w=rec.sh_frame.to_world(rec.wi),
+                                  beta=dr.gather(type(items.beta), items.beta, order),
+                                  d_vcm=dr.gather(mi.Float, items.d_vcm, order),
+                                  d_vc=dr.gather(mi.Float, items.d_vc, order),
+                                  s=dr.gather(mi.UInt32, items.s, order))
+        dr.eval(grid.start, grid.points, grid.photons)
+        return grid
+
+    def neighbour(self, cell: mi.Vector3i, away: mi.Vector3i, k) -> mi.Vector3i:
+        """The k-th of the 8 cells a sphere of radius r around a point of ``cell`` can
+        touch: bit 2, 1, 0 of k step x, y, z toward the nearer neighbour (``away``)."""
+        k = mi.UInt32(k)
+        return cell + mi.Vector3i(dr.select((k & 4) != 0, away.x, 0),
+                                  dr.select((k & 2) != 0, away.y, 0),
+                                  dr.select((k & 1) != 0, away.z, 0))
+
+
+def _near(grid: HashGrid, pos, cell, p, active):
+    """Is the vertex at ``pos`` (bucket order) of the visited ``cell`` (not a hash
+    collision's) and within r of p?"""
+    y = dr.gather(mi.Point3f, grid.points, pos, active)
+    own = dr.all(_cell(y, grid.inv_cell) == cell)
+    return active & own & (dr.squared_norm(y - p) <= grid.radius2)
+
+
+class _Light:
+    """What ``mis.Weights.merge`` reads of a light vertex."""
+    def __init__(self, d_vcm, d_vc, s):
+        self.d_vcm, self.d_vc, self.s = d_vcm, d_vc, s
+
+
+def _merge_one(ctx, pos, active, state, v):
+    """The weighted merge contribution of the light vertex at ``pos`` (bucket order) at
+    camera vertex ``v`` (z_j), before beta_E and the normalization."""
+    y = gather(ctx.grid.photons, pos, active)
+    w_y, beta_l, d_vcm, d_vc, s = y.w, y.beta, y.d_vcm, y.d_vc, y.s
+    active &= ctx.strategies.merges(s - 1, state.depth)
+    cos_g, ok = v.cosine(w_y)
+    active &= ok & (cos_g > 0)
+    f, pdf_w = v.eval(w_y, active)          # z_j toward y_{i-1}: the light side's reverse
+    value = f * beta_l / cos_g
+    active &= spectrum_nonzero(value)
+    if ctx.weights.merging:
+        rev_w = v.reverse_pdf(w_y, active)   # toward z_{j-1}: the camera side's reverse
+        value *= ctx.weights.merge(_Light(d_vcm, d_vc, s), state.d_vcm, state.d_vc,
+                                   state.depth, pdf_w, rev_w)
+    return dr.select(active, finite(value), 0.0)
+
+
+def visit(grid: HashGrid, store, p, active, value, zero):
+    """The sum over stored light vertices within r of ``p`` of ``value(pos, near)``
+    (``pos``: the vertex's place in bucket order, ``grid.order[pos]`` its pool item)
+    (0 where not ``near``): one symbolic loop over the 8 cells a sphere of radius r can
+    touch and the items of their buckets, one item (or one cell change) per iteration."""
+    scaled = p * grid.inv_cell
+    cell = mi.Vector3i(dr.floor(scaled))
+    away = mi.Vector3i(dr.select(scaled - dr.floor(scaled) < 0.5, -1, 1))
+
+    def body(k, pos, end, visiting, total):
+        inside = pos < end
+        near = _near(grid, pos, visiting, p, inside)
+        total = type(zero)(total + value(pos, near))
+        pos = dr.select(inside, pos + 1, pos)
+        k = dr.select(inside, k, k + 1)
+        load = ~inside & (k < 8)
+        nxt = grid.neighbour(cell, away, dr.maximum(k, 0))
+        bucket = _bucket(nxt, grid.buckets)
+        first = dr.gather(mi.UInt32, grid.start, bucket, load)
+        pos = dr.select(load, first, pos)
+        end = dr.select(load, first + dr.gather(mi.UInt32, grid.count, bucket, load), end)
+        visiting = dr.select(load, nxt, visiting)
+        return k, pos, end, visiting, total
+
+    n = dr.width(p)
+    _, _, _, _, total = dr.while_loop(
+        (dr.select(active, mi.Int32(-1), mi.Int32(8)), dr.zeros(mi.UInt32, n),
+         dr.zeros(mi.UInt32, n), mi.Vector3i(cell), type(zero)(zero)),
+        lambda k, pos, end, visiting, total: k < 8, body,
+        labels=("k", "pos", "end", "visiting", "total"), label="merges")
+    return total
+
+
+def merge_at(ctx, store, state, v, active) -> mi.Spectrum:
+    """Every merge at camera vertex z_j (j = state.depth): the weighted sum over the
+    light vertices within r, times beta_E / (pi r^2 N_L)."""
+    grid = ctx.grid
+    total = visit(grid, store, v.p, active,
+                  lambda pos, near: _merge_one(ctx, pos, near, state, v),
+                  dr.zeros(mi.Spectrum, dr.width(v.p)))
+    return dr.select(active, finite(state.beta * total * grid.norm), 0.0)
+
+
+def can_merge(strategies: StrategySet, v, depth, connectible):
+    """Camera vertex z_j merges: it scatters smoothly, lies on a surface, and some
+    light vertex y_i (i >= 1) could make a path within max_depth."""
+    return connectible & v.surface & strategies.merges(1, depth)
