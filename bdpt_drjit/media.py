@@ -284,8 +284,8 @@ class Media:
         the old direction with ``maxt - si.t`` left the target inside the ray: the
         origin's offset along the surface normal brings the target's plane closer by
         offset / |cos|, which beat the shadow epsilon (1e-3 of the distance) at grazing
-        crossings, and the target's own surface then blocked the connection (issue 27:
-        next-event rays from fog whose null top face lies 0.09 under an area light lost
+        crossings, and the target's own surface then blocked the connection
+        (next-event rays from fog whose null top face lies 0.09 under an area light lost
         7% of their transmittance, path tracing rendered the scene 7% dark).  Mitsuba's
         volpath has that flaw (tests/test_media.py, ``_lamp_over_fog``).  A null
         collision of ratio tracking lies on the ray, without offset: there the ray

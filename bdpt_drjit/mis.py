@@ -317,7 +317,7 @@ def lafortune_specularity(bsdf_flags, delta_sampled=False):
     With W alone, the weights summed to one over all strategies but not over those that
     can sample the path: a caustic (light, glass, floor, camera) put all its weight on
     connecting the floor to the glass vertex and was lost (Mitsuba's glass and mirror
-    spheres rendered 2% dark, issue 27's weighting comparison 9% on its glass caustic).
+    spheres rendered 2% dark, the weighting benchmark's glass caustic 9%).
     """
     glossy = mi.has_flag(bsdf_flags, mi.BSDFFlags.Glossy)
     return dr.select(delta_sampled, 1.0, dr.select(glossy, 0.5, 0.0))
