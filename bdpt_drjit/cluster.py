@@ -167,6 +167,8 @@ class Job:
     variant: str
     threads: int | None = None        # Dr.Jit's threads (local:N shares one machine)
     folder: str = ""                  # the scene's folder on the driver (for messages)
+    unit_costs: object = None         # the driver's units.UnitCosts: the pilot's worker
+                                      # decides as a local render on the driver would
 
 
 def _load(job: Job):
@@ -184,7 +186,8 @@ def _load(job: Job):
                                 % (job.scene, Path.cwd()))
     scene = mi.load_file(str(path), **job.params)
     renderer = Renderer(scene, sensor=job.sensor, spp=job.spp, seed=job.seed,
-                        strategy_images=job.strategy_images, **job.settings)
+                        strategy_images=job.strategy_images, unit_costs=job.unit_costs,
+                        **job.settings)
     renderer.redecide = False     # every worker renders the driver's plan, fixed before
     return renderer               # the pilot
 
@@ -225,6 +228,7 @@ class _Worker:
         out = self._passes(range(Pilot.PASSES))
         if "raw" in out:
             out["decision"] = self.renderer.pilot.decision
+            out["costs"] = self.renderer.pilot.costs
         return out
 
     def _passes(self, indices) -> dict:
@@ -427,7 +431,8 @@ class Cluster:
                   spp=renderer.spp, seed=renderer.seed,
                   strategy_images=bool(renderer.strategy_images),
                   settings=renderer.settings.as_dict(), variant=self.variant, threads=threads,
-                  folder=str(self.scene_path.parent))
+                  folder=str(self.scene_path.parent),
+                  unit_costs=renderer.pilot.costs.units if renderer.pilot else None)
         placements = ([{"num_cpus": 1}] * a.workers if a.kind == "local"
                       else self._placements()[:self.size])
         actor = ray.remote(_Worker)
@@ -669,12 +674,14 @@ class ClusterRun:
             self.overheads.append(time.perf_counter() - sent - out["time"])
             self.finished[index] = out
         if out.get("decision") is not None:
-            self._decided(out["decision"])
+            self._decided(out["decision"], out["costs"])
 
-    def _decided(self, decision) -> None:
-        """The pilot's choice of budget: the driver's renderer reports it."""
+    def _decided(self, decision, costs) -> None:
+        """The pilot's choice of budget and what it priced: the driver's renderer
+        reports them."""
         self.budget = self.renderer.budget = decision.budget
         self.renderer.pilot.decision = decision
+        self.renderer.pilot.costs = costs
 
     def _lost(self, slot, index: int, error) -> None:
         self.runs_lost[index] += 1

@@ -100,6 +100,9 @@ def test_auto_budget_on_a_cluster(folder, local_render):
     ref, _ = read_exr(local_render)
     assert meta["spp"] == 64 and meta["budget_decision"].startswith("chose " + meta["budget"])
     assert "; after " not in meta["budget_decision"]
+    # What the pilot's worker priced, with the driver's unit costs (the tests' file).
+    assert "camera_rays=0 " not in meta["cost_counts"] and "light_rays=" in meta["cost_counts"]
+    assert "path_ray=1.2e-07" in meta["unit_costs"]
     # Whole-image means: 24x24 pixels of 64 and 256 spp, a few percent apart at most.
     assert abs(img[..., :3].mean() / ref[..., :3].mean() - 1) < 0.03
 
