@@ -566,6 +566,10 @@ def test_info(scenes):
     assert "perspective" in out and "16x16" in out and "area" in out
     assert "twosided" in out and "diffuse" in out and "supported" in out
     assert "REFUSED" not in out
+    # The unit costs decisions price with (the tests' file), and no calibration by info.
+    assert "units:      camera_ray=1.25e-07" in out and "calibration.json" in out
+    fresh = ok(run_cli("info", CORNELL, env={"BDPT_CALIBRATION": str(scenes / "none.json")}))
+    assert "not measured yet" in fresh.stdout and "measuring" not in fresh.stderr
     p = ok(run_cli("info", scenes / "directionalarea.xml"))
     assert "directionalarea" in p.stdout and "REFUSED" in p.stdout
     p = ok(run_cli("info", scenes / "constant.xml"))

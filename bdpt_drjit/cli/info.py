@@ -79,8 +79,9 @@ def _verdict(scene, sensor: int, settings: dict, verdicts) -> str:
     shown = {"bdpt: " + v.message() for v in verdicts}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        try:
-            make_renderer(scene, sensor, None, 0, False, settings)
+        try:   # any unit costs: the verdict does not depend on them
+            from ..units import UnitCosts
+            make_renderer(scene, sensor, None, 0, False, settings, UnitCosts())
         except CLIError as e:
             return "status:     REFUSED: %s" % e
     extra = "".join("; warning: %s" % one_line(w.message) for w in caught
@@ -107,8 +108,19 @@ def scene_info(args) -> list:
         integrator_name, ", with " + ", ".join("%s=%s" % kv for kv in sorted(settings.items()))
         if settings else ""))
     lines += _merging_lines(scene, settings)
+    lines.append(_units_line(mi.variant()))
     lines.append(_verdict(scene, args.sensor, settings, verdicts))
     return lines
+
+
+def _units_line(variant: str) -> str:
+    """The unit costs an "auto" budget's decision prices its counts with (units.py)."""
+    from .. import units
+    found = units.load(variant)
+    if found is None:
+        return ("units:      not measured yet for %s: the first 'auto' render measures them "
+                "(or 'bdpt calibrate'), into %s" % (variant, units.path(variant)))
+    return "units:      %s (%s)" % (found.describe(), units.path(variant))
 
 
 def _merging_lines(scene, settings: dict) -> list:

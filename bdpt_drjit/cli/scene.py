@@ -102,12 +102,12 @@ def integrator_defaults(scene) -> tuple[dict, str]:
     return out, integ.class_name()
 
 
-def make_renderer(scene, sensor, spp, seed, strategy_images, settings):
+def make_renderer(scene, sensor, spp, seed, strategy_images, settings, unit_costs=None):
     from ..support import UnsupportedPluginError
     from ..render import Renderer
     try:
         return Renderer(scene, sensor=sensor, spp=spp, seed=seed,
-                        strategy_images=strategy_images, **settings)
+                        strategy_images=strategy_images, unit_costs=unit_costs, **settings)
     except UnsupportedPluginError as e:
         raise CLIError("the scene uses an unsupported plugin: %s" % one_line(e)) from None
     except (ValueError, RuntimeError) as e:
