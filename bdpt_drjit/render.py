@@ -591,7 +591,7 @@ class Renderer:
             # The camera rays a light_first_hits budget would still trace: z_1's, and
             # every ray of a lane that went on from z_1 through a delta lobe.
             kept = dr.sum(dr.select(cam.specular_z1, cam.rays, dr.minimum(cam.rays, 1)))
-            share = float(kept[0]) / max(float(dr.sum(cam.rays)[0]), 1.0)
+            share = float(kept[0]) / max(camera_rays, 1)
         self.pilot.record(index, lanes, camera_rays, ctx.light_count, light_rays, stored, share)
         if ctx.moments is not None:
             ctx.moments.count = cam.slot
