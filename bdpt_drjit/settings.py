@@ -152,18 +152,23 @@ def canonical_name(key: str) -> str:
     raise ValueError("bdpt: unknown parameter '%s' (known: %s)" % (key, ", ".join(PARAM)))
 
 
+def _auto_or_number(value, name: str, what: str, auto):
+    """"auto" (as ``auto``) or a finite number >= 0; else an error naming ``name``."""
+    if str(value) == "auto":
+        return auto
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = -1.0
+    if not number >= 0 or number == float("inf"):
+        raise ValueError("bdpt: %s must be 'auto' or a number >= 0 (%s), got %r"
+                         % (name, what, value))
+    return number
+
+
 def parse_light_paths(value):
     """``light_paths``: "auto" or a ratio >= 0."""
-    if str(value) == "auto":
-        return "auto"
-    try:
-        ratio = float(value)
-    except (TypeError, ValueError):
-        ratio = -1.0
-    if not ratio >= 0 or ratio == float("inf"):
-        raise ValueError("bdpt: light_paths must be 'auto' or a number >= 0 (light subpaths "
-                         "per camera sample), got %r" % (value,))
-    return ratio
+    return _auto_or_number(value, "light_paths", "light subpaths per camera sample", "auto")
 
 
 def parse_connections(value):
@@ -182,16 +187,7 @@ def parse_connections(value):
 
 def parse_radius(value) -> float:
     """``radius``: "auto" (0) or a length >= 0."""
-    if str(value) == "auto":
-        return 0.0
-    try:
-        r = float(value)
-    except (TypeError, ValueError):
-        r = -1.0
-    if not r >= 0 or r == float("inf"):
-        raise ValueError("bdpt: radius must be 'auto' or a length >= 0 (world units), got %r"
-                         % (value,))
-    return r
+    return _auto_or_number(value, "radius", "a length in world units", 0.0)
 
 
 def _convert(p: Param, value):
