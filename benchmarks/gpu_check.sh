@@ -5,23 +5,52 @@
 #   BDPT_SHARED=<shared> bash benchmarks/gpu_check.sh            # on the GPU machine
 #   VARIANT=llvm_ad_rgb RES=64 SPP=8 STEPS="efficiency profile" bash benchmarks/gpu_check.sh
 #                                                                # a dry run on a CPU
+# A machine without the Python packages gets them from wheels in .whl/ (Mitsuba's
+# stripped to cuda_ad_rgb, Dr.Jit's, OpenEXR's: all *.whl and *.zip there are unpacked
+# into /tmp/site) and the external scenes from .whl/shared when BDPT_SHARED is unset.
 set -u
 cd "$(dirname "$0")/.."
-export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb}
+if [ -d .whl ] && ! python3 -c "import mitsuba" 2>/dev/null; then
+    python3 -c "import glob, zipfile
+for f in glob.glob('.whl/*.whl') + glob.glob('.whl/*.zip'): zipfile.ZipFile(f).extractall('/tmp/site')"
+    export PYTHONPATH=/tmp/site:$PWD${PYTHONPATH:+:$PYTHONPATH}
+    export BDPT_SHARED=${BDPT_SHARED:-$PWD/.whl/shared}
+fi
+export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb} PYTHONUNBUFFERED=1
+PY=${PY:-python3}
 RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}
-STEPS=${STEPS:-calibrate tests efficiency profile throughput}
+STEPS=${STEPS:-calibrate tests passes efficiency profile throughput}
+EXT=${BDPT_SHARED:-../shared}/scenes/external
 mkdir -p "$OUT"
 step() {   # step NAME SECONDS COMMAND...: run with a time limit, log, report
     local name=$1 limit=$2; shift 2
     case " $STEPS " in *" $name "*) ;; *) return ;; esac
     local start=$SECONDS
-    timeout "$limit" "$@" > "$OUT/$name.log" 2>&1
+    timeout "$limit" bash -c "$*" > "$OUT/$name.log" 2>&1
     echo "== $name: exit $? in $((SECONDS - start)) s" | tee -a "$OUT/summary.txt"
     tail -n 25 "$OUT/$name.log"
 }
-step calibrate 120 python -m bdpt_drjit calibrate --variant "$BDPT_VARIANT"
-step tests 240 python -m pytest -q -x --ignore tests/test_cluster.py \
-    -k "not spectral_and_mono and not variant_switch and not specfilm and not slow"
-step efficiency 240 python -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3
-step profile 60 python -m benchmarks.profile_pass --res "$((RES / 4))" --spp 16
-step throughput 120 python -m benchmarks.throughput --no-cold --res "$((RES / 4))"
+profile() {   # Veach's BDPT, kernel by kernel, in the Cornell box and Veach's room
+    $PY -m benchmarks.profile_pass --res "$RES" --spp 4
+    $PY -m benchmarks.profile_pass --res "$RES" --spp 4 --max-depth 7 \
+        --scene "$EXT/veach-bidir/scene.xml"
+}
+throughput() {   # samples per second against path, the same two scenes
+    $PY -m benchmarks.throughput --no-cold --res "$RES" --spp 16
+    $PY -m benchmarks.throughput --no-cold --res "$RES" --spp 16 --max-depth 7 \
+        --scene "$EXT/veach-bidir/scene.xml"
+}
+passes() {   # per-pass wall and kernel time; pass sizes, vcm and pssmlt against path
+    $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 --repeats 2 --methods veach-2g,veach-8g,default
+    $PY -m benchmarks.gpu_passes --res "$RES" --spp 4 --repeats 1 --methods veach-2g,vcm,pssmlt
+    $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 --repeats 2 --max-depth 7 \
+        --scene "$EXT/veach-bidir/scene.xml" --methods veach-2g,veach-8g,default
+}
+export -f profile throughput passes; export PY RES EXT
+step calibrate 90 $PY -m bdpt_drjit calibrate --variant "$BDPT_VARIANT"
+step profile 60 profile
+step throughput 100 throughput
+step passes 200 passes
+step tests 200 $PY -m pytest -q -p no:cacheprovider -n "${JOBS:-12}" --ignore tests/test_cluster.py \
+    -k \'not spectral_and_mono and not variant_switch and not specfilm\'
+step efficiency 300 $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3

@@ -68,9 +68,10 @@ def main(argv=None) -> None:
     r = Renderer(scene, spp=2 * a.spp, seed=1, max_depth=a.max_depth, samples_per_pass=a.spp,
                  **budget)
 
-    def bdpt_pass():                # the renderer's two passes: warm, then profiled
+    def bdpt_pass():                # the renderer's passes: warm, then profiled
+        _, n_pixels, spp = r.plan[r.passes_done]   # the memory budget may split a.spp
         r.run_pass()
-        return r.pixels * a.spp
+        return n_pixels * spp
 
     path = mi.load_dict({"type": "path", "max_depth": a.max_depth})
 

@@ -1,0 +1,114 @@
+"""Where a GPU render's time goes, against Mitsuba's ``path`` in the same process:
+per-pass wall time split into kernel time and the rest (tracing the pass from Python,
+host syncs, launches), for Veach's BDPT at two memory budgets (so two pass sizes),
+the default budget, ``vcm`` (merging on) and PSSMLT.
+
+    BDPT_VARIANT=cuda_ad_rgb python -m benchmarks.gpu_passes --res 1024 --spp 16
+    python -m benchmarks.gpu_passes --res 128 --spp 4          # a dry run on the CPU
+
+Each method renders once to warm its kernels, then ``--repeats`` times with new seeds,
+interleaved with ``path``; reported are medians.  Kernel time per pass comes from one
+further render with Dr.Jit's kernel history on.
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import drjit as dr
+import mitsuba as mi
+
+from . import common as C
+from .throughput import DEFAULT_SCENE, load_scene
+
+VEACH = {"light_paths": 1, "connections": "all"}
+
+
+def _bdpt(scene, spp, seed, max_depth, **settings):
+    from bdpt_drjit.render import Renderer
+    r = Renderer(scene, spp=spp, seed=seed, max_depth=max_depth, **settings)
+    while not r.done:
+        r.run_pass()
+    dr.sync_thread()
+    return r
+
+
+def _mlt(scene, spp, seed, max_depth):
+    from bdpt_drjit import mlt
+    r = mlt.MLTRenderer(scene, seed=seed, max_depth=max_depth, mutations_per_pixel=spp)
+    while not r.done:
+        r.run_iteration()
+    dr.sync_thread()
+    return r
+
+
+def _path(scene, spp, seed, max_depth):
+    dr.eval(mi.render(scene, integrator=mi.load_dict({"type": "path", "max_depth": max_depth}),
+                      spp=spp, seed=seed))
+    dr.sync_thread()
+
+
+def _timed(fn, seed):
+    start = time.perf_counter()
+    r = fn(seed)
+    return time.perf_counter() - start, r
+
+
+def _kernel_ms(fn, seed) -> float:
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history()
+        fn(seed)
+        dr.sync_thread()
+        jit = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
+    return sum(e.get("execution_time", 0.0) for e in jit)
+
+
+def measure(scene, res, spp, max_depth, repeats, methods):
+    pixels = res * res
+    path = lambda seed: _path(scene, spp, seed, max_depth)          # noqa: E731
+    path(1)
+    rows = []
+    for name, fn in methods:
+        fn(2)                                                        # warm
+        times, path_times, passes = [], [], 0
+        for i in range(repeats):
+            t, r = _timed(fn, 10 + i)
+            times.append(t)
+            passes = getattr(r, "passes_done", None) or getattr(r, "iterations_done", 0)
+            path_times.append(_timed(path, 20 + i)[0])
+        t, tp = statistics.median(times), statistics.median(path_times)
+        kernel = _kernel_ms(fn, 30) / 1e3
+        rows.append((name, t, tp, passes, kernel))
+        print("%-28s %8.3f s  path %7.3f s  ratio %6.3f  passes %4d  per pass: %7.1f ms "
+              "wall, %7.1f ms kernels  samples/s %.3g"
+              % (name, t, tp, tp / t, passes, 1e3 * t / max(passes, 1),
+                 1e3 * kernel / max(passes, 1), pixels * spp / t), flush=True)
+    return rows
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scene", default=str(DEFAULT_SCENE))
+    ap.add_argument("--res", type=int, default=1024)
+    ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--max-depth", type=int, default=8)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--methods", default="veach-2g,veach-8g,default,vcm,pssmlt")
+    a = ap.parse_args(argv)
+    scene = load_scene(a.scene, a.res, a.res, a.max_depth)
+    s, d = a.spp, a.max_depth
+    table = {
+        "veach-2g": lambda seed: _bdpt(scene, s, seed, d, memory_budget=2 << 30, **VEACH),
+        "veach-8g": lambda seed: _bdpt(scene, s, seed, d, memory_budget=8 << 30, **VEACH),
+        "default": lambda seed: _bdpt(scene, s, seed, d),
+        "vcm": lambda seed: _bdpt(scene, s, seed, d, merging=True, **VEACH),
+        "pssmlt": lambda seed: _mlt(scene, s, seed, d),
+    }
+    print("%s, %s, %dx%d, %d spp, max_depth %d" % (mi.variant(), a.scene, a.res, a.res, s, d))
+    measure(scene, a.res, s, d, a.repeats, [(m, table[m]) for m in a.methods.split(",")])
+    C.film_pixels(scene)
+
+
+if __name__ == "__main__":
+    main()
