@@ -26,14 +26,20 @@ from .scenes import SCENES
 DEFAULT_SCENES = "cornell-diffuse,camera-behind-glass,cornell-light-up,veach-bidir"
 
 
-def _renderers(spec, scene, spp: int):
+def _renderers(spec, scene, spp: int, budgets: list):
+    """The methods: (spp, render(seed) -> image); the budgets the default chose are
+    appended to ``budgets``."""
     import bdpt_drjit
     import mitsuba as mi
     path = mi.load_dict({"type": "path", "max_depth": spec.max_depth})
 
     def bdpt(n, **budget):
-        return lambda seed: bdpt_drjit.render(scene, spp=n, seed=seed, max_depth=spec.max_depth,
-                                              **budget).image[..., :3]
+        def render(seed):
+            res = bdpt_drjit.render(scene, spp=n, seed=seed, max_depth=spec.max_depth, **budget)
+            if not budget:
+                budgets.append(res.stats["budget"])
+            return res.image[..., :3]
+        return render
     return {"default": (spp, bdpt(spp)),
             "Veach's BDPT": (max(spp // 2, 1), bdpt(max(spp // 2, 1), light_paths=1,
                                                    connections="all")),
@@ -45,7 +51,8 @@ def measure(name: str, res: int, spp: int, seeds: int) -> dict:
     spec = SCENES[name]
     width, height, _ = spec.resolution(res)
     scene = spec.load(width, height)
-    methods = _renderers(spec, scene, spp)
+    budgets = []
+    methods = _renderers(spec, scene, spp, budgets)
     images = {m: [] for m in methods}
     times = {m: [] for m in methods}
     for m, (_, render) in methods.items():
@@ -64,7 +71,8 @@ def measure(name: str, res: int, spp: int, seeds: int) -> dict:
     base = out["path"]["efficiency"]
     for m in out:
         out[m]["ratio"] = out[m]["efficiency"] / base
-    return {"scene": name, "size": "%dx%d" % (width, height), "methods": out}
+    return {"scene": name, "size": "%dx%d" % (width, height), "methods": out,
+            "budgets": sorted(set(budgets[1:]))}
 
 
 def main(argv=None) -> None:
@@ -77,16 +85,18 @@ def main(argv=None) -> None:
     import mitsuba as mi
     print("%s, %d seeds per method; efficiency / path's (> 1: better), time per render"
           % (mi.variant(), a.seeds))
-    print("| scene | size | default | Veach's BDPT | path |\n|---|---|---|---|---|")
+    print("| scene | size | default | Veach's BDPT | path | the default's budget |\n"
+          "|---|---|---|---|---|---|")
     for name in a.scenes.split(","):
         spec = SCENES[name]
         if spec.external and not spec.file.exists():
-            print("| %s | skipped: %s not found (../shared) | | | |" % (name, spec.file))
+            print("| %s | skipped: %s not found (../shared) | | | | |" % (name, spec.file))
             continue
         r = measure(name, a.res, a.spp, a.seeds)
         cells = ["**%.2f** (%d spp, %.0f ms)" % (v["ratio"], v["spp"], 1e3 * v["time"])
                  for v in r["methods"].values()]
-        print("| %s | %s | %s |" % (name, r["size"], " | ".join(cells)), flush=True)
+        print("| %s | %s | %s | %s |" % (name, r["size"], " | ".join(cells),
+                                          "; ".join(r["budgets"])), flush=True)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ fi
 export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb} PYTHONUNBUFFERED=1
 PY=${PY:-python3}
 RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}
-STEPS=${STEPS:-calibrate tests passes efficiency profile throughput}
+STEPS=${STEPS:-calibrate tests passes breakdown efficiency profile throughput}
 EXT=${BDPT_SHARED:-../shared}/scenes/external
 mkdir -p "$OUT"
 step() {   # step NAME SECONDS COMMAND...: run with a time limit, log, report
@@ -46,11 +46,17 @@ passes() {   # per-pass wall and kernel time; pass sizes, vcm and pssmlt against
     $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 --repeats 2 --max-depth 7 \
         --scene "$EXT/veach-bidir/scene.xml" --methods veach-2g,veach-8g,default
 }
-export -f profile throughput passes; export PY RES EXT
+breakdown() {   # the camera walk without connections, and with neither light walk nor them
+    for b in "light_paths=1 connections=0" "light_paths=0 connections=0"; do
+        $PY -m benchmarks.profile_pass --res "$RES" --spp 1 --budget "$b"
+    done
+}
+export -f profile throughput passes breakdown; export PY RES EXT
 step calibrate 90 $PY -m bdpt_drjit calibrate --variant "$BDPT_VARIANT"
 step profile 60 profile
 step throughput 100 throughput
-step passes 200 passes
-step tests 200 $PY -m pytest -q -p no:cacheprovider -n "${JOBS:-12}" --ignore tests/test_cluster.py \
+step passes 150 passes
+step breakdown 40 breakdown
+step tests 170 $PY -m pytest -q -p no:cacheprovider -n "${JOBS:-12}" --ignore tests/test_cluster.py \
     -k \'not spectral_and_mono and not variant_switch and not specfilm\'
-step efficiency 300 $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3
+step efficiency 200 $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3
