@@ -40,7 +40,7 @@ from .units import UnitCosts
 from .budgets import BDPT, PATH_TRACING, Budget, fixed_budget
 from .optimizer import MIN_SPP, MomentSample, MomentSamples, Pilot, luminance
 from .strategies import MERGE_LAYER, StrategyImages, StrategySet
-from . import merge
+from . import backend, merge
 from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore, gather
 from .walk import path_tracer_walk, trace_camera_subpaths, trace_light_subpaths
 
@@ -227,11 +227,12 @@ def plan_passes(spp: int, pixels: int, max_lanes: int, explicit: int, accepted) 
     per_pass = min(explicit or spp, max(1, max_lanes // pixels), spp)
     if not explicit or per_pass < explicit:
         per_pass = -(-spp // -(-spp // per_pass))    # equal passes
-    passes = []
+    passes, counts = [], {}         # accepted(n) for the (two) sizes asked
     if pixels * per_pass <= max_lanes:
         done = 0
         while done < spp:
-            n = accepted(min(per_pass, spp - done))
+            want = min(per_pass, spp - done)
+            n = counts[want] = counts.get(want) or accepted(want)
             passes.append((0, pixels, n))
             done += n
         return passes
@@ -295,7 +296,7 @@ class Renderer:
         self._unit_costs = unit_costs
         self.timings = None             # calibrate(): kernel seconds of the pilot's walks
         self._plan(fixed, layers)
-        self.redecide = True            # False: the pilot's decision holds (cluster.py)
+        self.redecide = True        # False: the pilot's decision and plan hold (cluster.py)
         aov_list = aovs.parse(self.settings.aovs)
         self.aovs = aovs.AOVs(scene, aov_list) if aov_list else None
         self.film = FilmAccumulator(film, coalesce=self.spp >= 4, layers=layers,
@@ -320,7 +321,8 @@ class Renderer:
         rendered in pixel ranges)."""
         lane_bytes = (_LANE_BYTES + _VERTICES_PER_LANE * RECORD_BYTES
                       + _SPLATS_PER_LANE * SPLAT_BYTES + len(layers) * 16)
-        max_lanes = min(max(1024, self.settings.memory_budget // lane_bytes), 2 ** 31)
+        self.memory_budget = self.settings.memory_budget or backend.default_memory_budget()
+        max_lanes = min(max(1024, self.memory_budget // lane_bytes), 2 ** 31)
         if self.settings.merging and not self.settings.samples_per_pass:
             # The radius shrinks per pass (merge.py): passes of a few samples per pixel.
             max_lanes = min(max_lanes, max(merge.PASS_LANES, self.pixels))
@@ -390,6 +392,21 @@ class Renderer:
                      if ends[i] >= c * pilot_spp - 1e-9]
             if after:
                 self._moment_passes.add(after[0])
+
+    def _plan_path_tracing(self) -> None:
+        """Where the pilot chose path tracing, the passes after its round run Mitsuba's
+        path, whose lanes hold little: as few of them as ``backend.path_pass_lanes``
+        allows (a GPU pass's fixed cost is 25-40 ms: at the BDPT plan's 1 spp per pass
+        the default took 13x ``path``'s time on an H100 at 1024x1024, 16 spp).  Not on
+        a cluster, whose workers render a plan fixed before the pilot."""
+        rest = self.plan[self._pilot_round:]
+        if (not self.redecide or self.budget != PATH_TRACING or self._path_tracer is None
+                or not rest or rest[0][1] != self.pixels):
+            return
+        self.plan = self.plan[:self._pilot_round] + plan_passes(
+            sum(spp for _, _, spp in rest), self.pixels,
+            backend.path_pass_lanes(self.memory_budget), self.settings.samples_per_pass,
+            self._accepted_count)
 
     def _accepted_count(self, n: int) -> int:
         sampler = self.sensor.sampler().clone()
@@ -604,6 +621,7 @@ class Renderer:
             self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean,
                                              self.plan[index][2], filled).budget
             self._plan_rounds()
+            self._plan_path_tracing()
 
     def _pilot_pixels(self, shape) -> np.ndarray:
         """The crop pixels (H, W) of a quarter-film pilot's passes: those whose index

@@ -24,7 +24,7 @@ STRATEGY_SUBSETS = ("all", "pt", "lt", "ppm")
 # Heuristics that merging (vertex merging, merge.py) can join: the ratio heuristics.
 MERGING_HEURISTICS = ("power", "balance", "uniform")
 FIRST_HITS = ("auto", "all", "light_image")
-DEFAULT_MEMORY_BUDGET = 2 * 1024 ** 3
+MIN_MEMORY_BUDGET = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -49,7 +49,7 @@ class Param:
         if self.kind is bool:
             return "true" if self.default else "false"
         if self.name == "memory_budget":
-            return "2 GiB"
+            return "auto"
         return str(self.default) if self.default != "" else "none"
 
 
@@ -102,8 +102,10 @@ PARAMS = (
           "aovs.py).  Their channels follow the image's."),
     Param("samples_per_pass", int, 0, "Samples per pixel per pass; 0 chooses it so that "
           "a pass fits ``memory_budget``.", minimum=0),
-    Param("memory_budget", int, DEFAULT_MEMORY_BUDGET, "Bytes a pass may use for its "
-          "wavefront state and stored light vertices.", minimum=1 << 20),
+    Param("memory_budget", int, 0, "Bytes a pass may use for its wavefront state and "
+          "stored light vertices (at least 1 MiB); 0 = auto: 2 GiB on the CPU, a quarter "
+          "of the GPU's memory under CUDA, where a pass's fixed cost asks for large "
+          "passes (backend.py).", minimum=0),
 )
 PARAM = {p.name: p for p in PARAMS}
 # Old names that still work, with a DeprecationWarning.
@@ -217,6 +219,9 @@ def _convert(p: Param, value):
                             ", ".join(p.choices)))
     if p.minimum is not None and value < p.minimum:
         raise ValueError("bdpt: %s must be >= %d, got %d" % (p.name, p.minimum, value))
+    if p.name == "memory_budget" and 0 < value < MIN_MEMORY_BUDGET:
+        raise ValueError("bdpt: memory_budget must be 0 (auto) or at least %d bytes (1 MiB), "
+                         "got %d" % (MIN_MEMORY_BUDGET, value))
     return value
 
 

@@ -90,6 +90,31 @@ def test_a_path_traced_pass_is_rendered_when_it_is_counted():
     assert wall <= 1.1 * r.time, (wall, r.time, r.passes_done)
 
 
+def test_path_tracing_runs_in_as_few_passes_as_its_lanes_allow():
+    """Where the pilot chooses path tracing, the passes after its round are sized for
+    Mitsuba's path (backend.path_pass_lanes), not for BDPT's wavefront: a pass's fixed
+    cost made the default 13x path's time on a GPU at 1 spp per pass.  The film still
+    gets every sample asked for; a fixed budget keeps its plan."""
+    from bdpt_drjit import backend
+    scene = mi.load_file(scene_path("glass-pane.xml"), resx=64, resy=64)
+    budget = 64 << 20        # BDPT's plan: 14 spp per pass; path's: 256
+    r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=1024, seed=1, max_depth=6,
+                                                  memory_budget=budget)
+    bdpt_passes = len(r.plan)
+    while not r.done:
+        r.run_pass()
+    assert r.budget.light_ratio == 0, r.budget
+    rest = r.plan[r._pilot_round:]
+    per_pass = backend.path_pass_lanes(budget) // r.pixels
+    assert all(spp <= per_pass for _, _, spp in rest)
+    assert len(rest) == -(-sum(spp for _, _, spp in rest) // per_pass) < bdpt_passes // 8
+    assert r.spp_done == 1024 and r.path_tracer_spp == sum(spp for _, _, spp in rest)
+    fixed = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=1024, seed=1, max_depth=6,
+                                                      memory_budget=budget, light_paths=0,
+                                                      connections=0)
+    assert len(fixed.plan) == -(-1024 // 14)
+
+
 def test_media_keep_the_engine_path_tracer():
     """Mitsuba's path ignores media: with a medium the engine's own walk path-traces."""
     scene = mi.load_file(str(ROOT / "scenes" / "media" / "fog-cube.xml"), resx=16, resy=16)

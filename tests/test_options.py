@@ -80,6 +80,20 @@ def test_bad_settings(box):
         mi.load_dict({"type": "bdpt", "maxdepth": 3})
 
 
+def test_memory_budget_auto_follows_the_backend(box, monkeypatch):
+    """memory_budget=0 (the default) is 2 GiB on the CPU and a quarter of the GPU's
+    memory under CUDA, never less than 2 GiB; a budget under 1 MiB is refused."""
+    from bdpt_drjit import backend
+    assert bdpt_drjit.Renderer(box, spp=1).memory_budget == 2 << 30
+    assert bdpt_drjit.Renderer(box, spp=1, memory_budget=1 << 20).memory_budget == 1 << 20
+    with pytest.raises(ValueError, match="memory_budget must be 0 .auto. or at least"):
+        bdpt_drjit.Renderer(box, spp=1, memory_budget=1000)
+    monkeypatch.setattr(backend, "is_cuda", lambda: True)
+    for total, expected in [(80 << 30, 20 << 30), (4 << 30, 2 << 30), (0, 2 << 30)]:
+        monkeypatch.setattr(backend, "gpu_memory", lambda: total)
+        assert backend.default_memory_budget() == expected
+
+
 # -- a good Mitsuba citizen --------------------------------------------------------------
 def test_seed_as_mitsuba_passes_it(box):
     """mi.render types seed as mi.UInt32 (Mitsuba's path accepts one); a Dr.Jit array

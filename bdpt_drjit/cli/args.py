@@ -8,7 +8,7 @@ import re
 import sys
 
 from .. import DEFAULT_VARIANT
-from ..settings import PARAMS, Param
+from ..settings import MIN_MEMORY_BUDGET, PARAMS, Param
 from .errors import CLIError, eprint
 
 PROG = "bdpt"
@@ -89,15 +89,16 @@ def _technique(text):
 
 # -- options ------------------------------------------------------------------------
 def _bytes(lowest: int):
-    """An argparse type: a byte count >= ``lowest``, e.g. 1073741824, 512M or 2G."""
+    """An argparse type: 0 (auto) or a byte count >= ``lowest``, e.g. 1073741824, 512M
+    or 2G."""
     def parse(text):
         m = re.fullmatch(r"\s*(\d+)\s*([KMGT]?)(?:i?B)?\s*", text, re.I)
         if not m:
             raise argparse.ArgumentTypeError("expected a number of bytes (e.g. 512M or 2G), "
                                              "got %r" % text)
         v = int(m.group(1)) * 1024 ** " KMGT".index(m.group(2).upper() or " ")
-        if v < lowest:
-            raise argparse.ArgumentTypeError("must be at least %d bytes (%d MiB), got %s"
+        if 0 < v < lowest:
+            raise argparse.ArgumentTypeError("must be 0 (auto) or at least %d bytes (%d MiB), got %s"
                                              % (lowest, lowest >> 20, text))
         return v
     return parse
@@ -116,7 +117,7 @@ def _param_option(p: Param) -> dict:
     elif p.choices is not None:
         kw["choices"] = p.choices
     elif p.name == "memory_budget":
-        kw.update(type=_bytes(p.minimum), metavar="BYTES")
+        kw.update(type=_bytes(MIN_MEMORY_BUDGET), metavar="BYTES")
     elif p.kind is int:
         kw.update(type=int_at_least(p.minimum) if p.minimum is not None else int, metavar="N")
     return kw

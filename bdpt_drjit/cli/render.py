@@ -32,6 +32,7 @@ class Outputs:
         write must succeed."""
         res = renderer.result()
         self.meta.update(spp=res.spp, passes=res.passes, render_time=float(res.time),
+                         samples_per_pass=max(p[2] for p in renderer.plan),
                          budget=res.stats["budget"], budget_decision=res.stats["decision"],
                          **{k: res.stats[k] for k in ("cost_counts", "unit_costs") if k in res.stats})
         failed = "; ".join(self.write(res, self.meta))

@@ -1,0 +1,55 @@
+"""What the backend a render runs on sets: the memory a pass may use by default, and
+the lanes of a pass of Mitsuba's ``path``.
+
+A pass's fixed cost (tracing its kernels from Python, host syncs) is a few ms on the
+CPU but 25-40 ms on a GPU host, where its kernels take 4-35 ns per lane: there passes
+must be large.  The default memory budget is therefore 2 GiB on the CPU and a quarter of
+the GPU's memory under CUDA, and a pass of path tracing (the pilot's choice where light
+paths do not pay) takes up to 2^24 lanes there.  Sizes are fixed by the device, not by
+timings, so a seed still fixes the image on a given machine.
+"""
+from __future__ import annotations
+
+import ctypes
+import functools
+
+import mitsuba as mi
+
+CPU_MEMORY_BUDGET = 2 * 1024 ** 3
+# Lanes of a pass of Mitsuba's path after the pilot chose path tracing, at most: on the
+# CPU about what a BDPT pass takes; on a GPU 16 spp of a 1024x1024 film.
+PATH_PASS_LANES = {"llvm": 1 << 21, "cuda": 1 << 24}
+# Bytes per lane of such a pass (Mitsuba's path: camera ray and sampler state;
+# measured 28-64 bytes per lane on the CPU and an H100).
+PATH_LANE_BYTES = 64
+
+
+def is_cuda() -> bool:
+    return mi.variant().startswith("cuda")
+
+
+def default_memory_budget() -> int:
+    """The memory budget ``memory_budget=0`` (auto) means on this backend."""
+    if not is_cuda():
+        return CPU_MEMORY_BUDGET
+    return max(CPU_MEMORY_BUDGET, gpu_memory() // 4)
+
+
+@functools.lru_cache(maxsize=None)
+def gpu_memory() -> int:
+    """Total memory of CUDA device 0 in bytes (0 where the driver does not say);
+    Dr.Jit does not report it, so the CUDA driver is asked directly."""
+    try:
+        cuda = ctypes.CDLL("libcuda.so.1")
+    except OSError:
+        return 0
+    total = ctypes.c_size_t(0)
+    if cuda.cuInit(0) != 0 or cuda.cuDeviceTotalMem_v2(ctypes.byref(total), 0) != 0:
+        return 0
+    return int(total.value)
+
+
+def path_pass_lanes(memory_budget: int) -> int:
+    """Lanes of a pass of Mitsuba's path under ``memory_budget``."""
+    cap = PATH_PASS_LANES["cuda" if is_cuda() else "llvm"]
+    return max(1024, min(cap, memory_budget // PATH_LANE_BYTES))
