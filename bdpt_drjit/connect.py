@@ -99,18 +99,20 @@ def next_event(ctx, state, v, sample, active):
     active = active & (ds.pdf > 0) & spectrum_nonzero(spec)
     cos_cam, ok = v.cosine(ds.d)
     active = active & ok
-    f, bsdf_pdf_w = v.eval(ds.d, active)
+    weights = ctx.weights
+    if weights.on and weights.chains:
+        f, bsdf_pdf_w, bsdf_rev_w = v.eval_and_reverse(ds.d, active)
+    else:
+        (f, bsdf_pdf_w), bsdf_rev_w = v.eval(ds.d, active), mi.Float(0.0)
     contrib = state.beta * f * spec
     traced = active & spectrum_nonzero(contrib)
     key = connection_key(ctx, state.depth, 0)
     tr, dens_fwd, dens_rev, rays = ctx.media.transmittance(v, ds.p, 1.0, key, traced)
     contrib *= tr
     active = traced & spectrum_nonzero(tr)
-    weights = ctx.weights
     if weights.on:
-        bsdf_rev_w, emission_pdf_aw, cos_light = mi.Float(0.0), mi.Float(0.0), mi.Float(1.0)
+        emission_pdf_aw, cos_light = mi.Float(0.0), mi.Float(1.0)
         if weights.chains:
-            bsdf_rev_w = v.reverse_pdf(ds.d, active)
             _, emission_pdf_aw, cos_light, _ = ctx.emitters.emission_pdfs(ds.emitter, ds.n, -ds.d, active)
             emission_pdf_aw *= dens_rev
         directional = False
@@ -213,8 +215,8 @@ def connect_vertices(ctx, light, active, cam, v_c):
     cos_c, ok_c = v_c.cosine(w)
     cos_l, ok_l = v_l.cosine(-w)
     active = active & ok_c & ok_l
-    f_c, pdf_c_w = v_c.eval(w, active)
-    f_l, rev_l_w = v_l.eval_adjoint(-w, active)
+    f_c, pdf_c_w, rev_c_w = v_c.eval_and_reverse(w, active)
+    f_l, rev_l_w, pdf_l_w = v_l.eval_adjoint_and_pdf(-w, active)
     contrib = cam.beta * f_c * f_l * light.beta / dist2
     traced = active & spectrum_nonzero(contrib)
     key = connection_key(ctx, cam.depth, light.s)
@@ -223,8 +225,6 @@ def connect_vertices(ctx, light, active, cam, v_c):
     active = traced & spectrum_nonzero(tr)
     weights = ctx.weights
     if weights.on:
-        pdf_l_w = v_l.pdf(-w, active)
-        rev_c_w = v_c.reverse_pdf(w, active)
         pdf_c_a = pdf_c_w * cos_l / dist2 * dens_fwd
         pdf_l_a = pdf_l_w * cos_c / dist2 * dens_rev
         contrib *= weights.connect(light, cam.d_vcm, cam.d_vc, cam.depth, cam.lw,

@@ -124,6 +124,22 @@ RADIANCE = mi.BSDFContext(mi.TransportMode.Radiance)
 IMPORTANCE = mi.BSDFContext(mi.TransportMode.Importance)
 
 
+# One virtual call for two queries of the same BSDF (``dr.dispatch``): on a GPU each
+# call inside a loop spills the live state; a connection asked four.
+def _forward_and_reverse(bsdf, si, wo_local, active):
+    """(f cos, density of wo) in radiance mode, and the density of si.wi had the path
+    arrived from wo (importance mode): what a camera vertex gives a connection."""
+    f, pdf_w = bsdf.eval_pdf(RADIANCE, si, wo_local, active)
+    return f, pdf_w, reverse_pdf(bsdf, IMPORTANCE, si, wo_local, active)
+
+
+def _adjoint_and_forward(bsdf, si, wo_local, active):
+    """``eval_adjoint``'s (value, reverse density) and the importance-mode density of
+    wo: what a light vertex gives a connection."""
+    f, rev_w = eval_adjoint(bsdf, si, wo_local, active)
+    return f, rev_w, bsdf.pdf(IMPORTANCE, si, wo_local, active)
+
+
 class Vertex:
     """A scattering vertex of a walk: a surface with its BSDF, or (``in_medium``) a
     point in a medium with its phase function.  Walks and strategies ask it for values
@@ -232,6 +248,20 @@ class Vertex:
         """(adjoint value toward w, reverse density): see ``eval_adjoint``."""
         return self._mix(eval_adjoint(self.bsdf, self.si, self.si.to_local(w), active),
                          w, active, True)
+
+    def eval_and_reverse(self, w, active):
+        """``eval(w)`` and ``reverse_pdf(w)`` in one call: (f cos, pdf_w, rev_w)."""
+        f, pdf_w, rev_w = dr.dispatch(self.bsdf, _forward_and_reverse, self.si,
+                                      self.si.to_local(w), active)
+        f, pdf_w = self._mix((f, pdf_w), w, active, False)
+        return f, pdf_w, self._mix((f, rev_w), w, active, True)[1]
+
+    def eval_adjoint_and_pdf(self, w, active):
+        """``eval_adjoint(w)`` and ``pdf(w)`` in one call: (f_adj, rev_w, pdf_w)."""
+        f, rev_w, pdf_w = dr.dispatch(self.bsdf, _adjoint_and_forward, self.si,
+                                      self.si.to_local(w), active)
+        f, rev_w = self._mix((f, rev_w), w, active, True)
+        return f, rev_w, self._mix((f, pdf_w), w, active, False)[1]
 
     def pdf(self, w, active, mode=IMPORTANCE):
         """The density of sampling w here."""

@@ -41,10 +41,10 @@ throughput() {   # samples per second against path, the same two scenes
         --scene "$EXT/veach-bidir/scene.xml"
 }
 passes() {   # per-pass wall and kernel time; pass sizes, vcm and pssmlt against path
-    $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 --repeats 2 --methods veach-2g,veach-8g,default
+    $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 --repeats 2 --methods veach-2g,veach,veach-separate-calls,default
     $PY -m benchmarks.gpu_passes --res "$RES" --spp 4 --repeats 1 --methods veach-2g,vcm,pssmlt
     $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 --repeats 2 --max-depth 7 \
-        --scene "$EXT/veach-bidir/scene.xml" --methods veach-2g,veach-8g,default
+        --scene "$EXT/veach-bidir/scene.xml" --methods veach-2g,veach,veach-separate-calls,default
 }
 breakdown() {   # the camera walk without connections, and with neither light walk nor them
     for b in "light_paths=1 connections=0" "light_paths=0 connections=0"; do

@@ -1,7 +1,9 @@
 """Where a GPU render's time goes, against Mitsuba's ``path`` in the same process:
 per-pass wall time split into kernel time and the rest (tracing the pass from Python,
-host syncs, launches), for Veach's BDPT at two memory budgets (so two pass sizes),
-the default budget, ``vcm`` (merging on) and PSSMLT.
+host syncs, launches), for Veach's BDPT at a 2 GiB and at the default memory budget
+(two pass sizes), the default budget, ``vcm`` (merging on) and PSSMLT.
+``veach-separate-calls`` is Veach's BDPT with one virtual call per BSDF query (an A/B
+of their pairing in surface.Vertex).
 
     BDPT_VARIANT=cuda_ad_rgb python -m benchmarks.gpu_passes --res 1024 --spp 16
     python -m benchmarks.gpu_passes --res 128 --spp 4          # a dry run on the CPU
@@ -32,6 +34,22 @@ def _bdpt(scene, spp, seed, max_depth, **settings):
         r.run_pass()
     dr.sync_thread()
     return r
+
+
+def _separate_calls(fn):
+    """``fn`` with a vertex's BSDF queries made one virtual call each, as before they
+    were paired (surface.Vertex.eval_and_reverse, eval_adjoint_and_pdf): an A/B."""
+    from bdpt_drjit.surface import Vertex
+
+    def run(seed):
+        paired = Vertex.eval_and_reverse, Vertex.eval_adjoint_and_pdf
+        Vertex.eval_and_reverse = lambda v, w, a: (*v.eval(w, a), v.reverse_pdf(w, a))
+        Vertex.eval_adjoint_and_pdf = lambda v, w, a: (*v.eval_adjoint(w, a), v.pdf(w, a))
+        try:
+            return fn(seed)
+        finally:
+            Vertex.eval_and_reverse, Vertex.eval_adjoint_and_pdf = paired
+    return run
 
 
 def _mlt(scene, spp, seed, max_depth):
@@ -94,13 +112,14 @@ def main(argv=None) -> None:
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--max-depth", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--methods", default="veach-2g,veach-8g,default,vcm,pssmlt")
+    ap.add_argument("--methods", default="veach-2g,veach,default,vcm,pssmlt")
     a = ap.parse_args(argv)
     scene = load_scene(a.scene, a.res, a.res, a.max_depth)
     s, d = a.spp, a.max_depth
     table = {
         "veach-2g": lambda seed: _bdpt(scene, s, seed, d, memory_budget=2 << 30, **VEACH),
-        "veach-8g": lambda seed: _bdpt(scene, s, seed, d, memory_budget=8 << 30, **VEACH),
+        "veach": lambda seed: _bdpt(scene, s, seed, d, **VEACH),
+        "veach-separate-calls": _separate_calls(lambda seed: _bdpt(scene, s, seed, d, **VEACH)),
         "default": lambda seed: _bdpt(scene, s, seed, d),
         "vcm": lambda seed: _bdpt(scene, s, seed, d, merging=True, **VEACH),
         "pssmlt": lambda seed: _mlt(scene, s, seed, d),
