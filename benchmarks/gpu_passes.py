@@ -98,10 +98,13 @@ def measure(scene, res, spp, max_depth, repeats, methods):
         t, tp = statistics.median(times), statistics.median(path_times)
         kernel = _kernel_ms(fn, 30) / 1e3
         rows.append((name, t, tp, passes, kernel))
-        print("%-28s %8.3f s  path %7.3f s  ratio %6.3f  passes %4d  per pass: %7.1f ms "
-              "wall, %7.1f ms kernels  samples/s %.3g"
+        chains = getattr(r, "chains", 0)        # MLT: a pass is an iteration of every chain
+        print("%-24s %8.3f s  path %7.3f s  ratio %6.3f  passes %4d  per pass: %7.1f ms "
+              "wall, %7.1f ms kernels  samples/s %.3g%s"
               % (name, t, tp, tp / t, passes, 1e3 * t / max(passes, 1),
-                 1e3 * kernel / max(passes, 1), pixels * spp / t), flush=True)
+                 1e3 * kernel / max(passes, 1), pixels * spp / t,
+                 "  %d chains, %.3g mutations/s" % (chains, chains * passes / t) if chains
+                 else ""), flush=True)
     return rows
 
 
