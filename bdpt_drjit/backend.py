@@ -3,10 +3,10 @@ the lanes of a pass of Mitsuba's ``path``.
 
 A pass's fixed cost (tracing its kernels from Python, host syncs) is a few ms on the
 CPU but 25-40 ms on a GPU host, where its kernels take 4-35 ns per lane: there passes
-must be large.  The default memory budget is therefore 2 GiB on the CPU and a quarter of
-the GPU's memory under CUDA, and a pass of path tracing (the pilot's choice where light
-paths do not pay) takes up to 2^24 lanes there.  Sizes are fixed by the device, not by
-timings, so a seed still fixes the image on a given machine.
+must be large.  The default memory budget is therefore 2 GiB on the CPU and a quarter
+of the GPU's memory (2-8 GiB) under CUDA, and a pass of path tracing (the pilot's
+choice where light paths do not pay) takes up to 2^24 lanes there.  Sizes follow the
+device, not timings, so a seed still fixes the image on a given machine.
 """
 from __future__ import annotations
 
@@ -16,6 +16,9 @@ import functools
 import mitsuba as mi
 
 CPU_MEMORY_BUDGET = 2 * 1024 ** 3
+# Under CUDA: a quarter of the GPU's memory, between these.  Past ~8M lanes (8 GiB at
+# ~1.1 KB per lane) a pass's fixed cost is under a tenth of its time.
+GPU_MEMORY_BUDGET = (CPU_MEMORY_BUDGET, 8 * 1024 ** 3)
 # Lanes of a pass of Mitsuba's path after the pilot chose path tracing, at most: on the
 # CPU about what a BDPT pass takes; on a GPU 16 spp of a 1024x1024 film.
 PATH_PASS_LANES = {"llvm": 1 << 21, "cuda": 1 << 24}
@@ -32,7 +35,8 @@ def default_memory_budget() -> int:
     """The memory budget ``memory_budget=0`` (auto) means on this backend."""
     if not is_cuda():
         return CPU_MEMORY_BUDGET
-    return max(CPU_MEMORY_BUDGET, gpu_memory() // 4)
+    low, high = GPU_MEMORY_BUDGET
+    return min(high, max(low, gpu_memory() // 4))
 
 
 @functools.lru_cache(maxsize=None)
