@@ -57,6 +57,6 @@ step profile 60 profile
 step throughput 100 throughput
 step passes 150 passes
 step breakdown 40 breakdown
-step tests 170 $PY -m pytest -q -p no:cacheprovider -n "${JOBS:-12}" --ignore tests/test_cluster.py \
+step tests 170 $PY -m pytest -q -p no:cacheprovider -n "${JOBS:-8}" --ignore tests/test_cluster.py \
     -k \'not spectral_and_mono and not variant_switch and not specfilm\'
 step efficiency 200 $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3
