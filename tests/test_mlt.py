@@ -74,6 +74,53 @@ def test_image_sum_is_b_at_every_iteration():
     assert 0.5 < r.result().stats["acceptance"] < 1.0
 
 
+def test_automatic_plan():
+    """Automatic chains: short chains (CHAIN_MUTATIONS mutations each) between 4096 and
+    MAX_CHAINS lanes, never more chains than mutations; the bootstrap has
+    BOOTSTRAP_PER_CHAIN samples per chain (at least MIN_BOOTSTRAP); given values stay."""
+    for mutations in (100, 5000, 4096 * 64, 4096 * 256, 512 * 512 * 64, 1 << 40):
+        chains, boot = mlt.automatic_plan(mutations)
+        assert chains <= mutations and chains <= mlt.MAX_CHAINS
+        assert chains == mutations or chains >= 4096
+        if 4096 * mlt.CHAIN_MUTATIONS <= mutations <= mlt.MAX_CHAINS * mlt.CHAIN_MUTATIONS:
+            assert chains == mutations // mlt.CHAIN_MUTATIONS
+        assert boot == max(mlt.MIN_BOOTSTRAP, mlt.BOOTSTRAP_PER_CHAIN * chains)
+    assert mlt.automatic_plan(1 << 40) == (mlt.MAX_CHAINS, 8 * mlt.MAX_CHAINS)
+    assert mlt.automatic_plan(10 ** 6, 1000, 5000) == (1000, 5000)
+    r = mlt.MLTRenderer(_box(), seed=1, mutations_per_pixel=64, max_depth=5)
+    assert (r.chains, r.bootstrap_samples) == mlt.automatic_plan(64 * 256)
+    assert r.iterations == 4
+
+
+def test_acceptance_of_small_and_large_steps():
+    """The tally of small and large steps: large steps only count no small ones and
+    the reverse; the mean acceptance per iteration is the proposals' mean of both."""
+    scene = _box()
+    kw = dict(mutations_per_pixel=8, bootstrap_samples=8192, chains=512, max_depth=5)
+    small = _mlt(scene, 1, large_step_probability=0.0, **kw).stats
+    large = _mlt(scene, 1, large_step_probability=1.0, **kw).stats
+    assert small["acceptance_large"] == 0.0 and 0.0 < small["acceptance_small"] < 1.0
+    assert large["acceptance_small"] == 0.0 and 0.0 < large["acceptance_large"] < 1.0
+    assert abs(small["acceptance_small"] - small["acceptance"]) < 1e-5
+    assert abs(large["acceptance_large"] - large["acceptance"]) < 1e-5
+    r = mlt.MLTRenderer(scene, seed=2, **kw)
+    while not r.done:
+        r.run_iteration()
+    t = r._tally.numpy()
+    assert t[1] + t[3] == 512 * r.iterations_done
+    assert abs((t[0] + t[2]) / (t[1] + t[3]) - np.mean(r.acceptance)) < 1e-5
+    # small steps of a diffuse box are accepted more often than independent proposals
+    assert r.step_acceptance()[0] > r.step_acceptance()[1] > 0.0
+
+
+def test_benchmark_renders_at_least_one_iteration():
+    """benchmarks/mlt_door.py at equal time: a bootstrap that outlasts the time still
+    gets one iteration, as the CLI's --time (it returned a black image before)."""
+    from benchmarks import mlt_door
+    img, seconds, mpp = mlt_door.timed_mlt(_box(), 0.0, 1, chains=256, bootstrap=4096)
+    assert mpp == 1 and img.mean() > 0
+
+
 def test_unbounded_depth_and_filters():
     """max_depth -1 (coordinates past the stored depths are fresh numbers each
     evaluation) and a gaussian filter (splatted records) agree with BDPT."""
