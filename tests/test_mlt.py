@@ -88,8 +88,34 @@ def test_automatic_plan():
     assert mlt.automatic_plan(1 << 40) == (mlt.MAX_CHAINS, 8 * mlt.MAX_CHAINS)
     assert mlt.automatic_plan(10 ** 6, 1000, 5000) == (1000, 5000)
     r = mlt.MLTRenderer(_box(), seed=1, mutations_per_pixel=64, max_depth=5)
+    # the box's f is nearly flat: the bootstrap's effective sample size caps nothing
     assert (r.chains, r.bootstrap_samples) == mlt.automatic_plan(64 * 256)
     assert r.iterations == 4
+
+
+def test_chains_capped_by_the_bootstrap():
+    """Automatic chains are at most ESS_CHAINS x the bootstrap's effective sample size
+    (sum f)^2 / sum f^2, and at least MIN_CHAINS (or the plan, where smaller)."""
+    flat = np.ones(100000)
+    assert mlt.chains_for_bootstrap(262144, flat) == int(mlt.ESS_CHAINS * 100000)
+    assert mlt.chains_for_bootstrap(1000, flat) == 1000
+    sparse = np.zeros(100000)
+    sparse[:20000] = 3.0                                  # 20000 equal nonzero samples
+    assert mlt.chains_for_bootstrap(262144, sparse) == int(mlt.ESS_CHAINS * 20000)
+    sparse[:1000] = 0.0
+    sparse[:10] = 1e4                                     # a heavy tail: ESS ~ 10.4
+    assert mlt.chains_for_bootstrap(262144, sparse) == mlt.MIN_CHAINS
+    assert mlt.chains_for_bootstrap(262144, np.zeros(10)) == mlt.MIN_CHAINS
+    # the door with a narrow gap: few of the bootstrap's samples carry light, so the
+    # renderer runs fewer, longer chains than planned; given chains stay as they are
+    scene = mi.load_file(str(SCENES / "door-ajar.xml"), resx=32, resy=32, gap_start=0.49)
+    r = mlt.MLTRenderer(scene, seed=1, mutations_per_pixel=1024, max_depth=8)
+    planned, boot = mlt.automatic_plan(1024 * 1024)
+    assert r.bootstrap_samples == boot and mlt.MIN_CHAINS <= r.chains < planned // 4
+    assert r.iterations == round(1024 * 1024 / r.chains)
+    r = mlt.MLTRenderer(scene, seed=1, mutations_per_pixel=1024, chains=planned,
+                        bootstrap_samples=65536, max_depth=8)
+    assert r.chains == planned
 
 
 def test_acceptance_of_small_and_large_steps():
