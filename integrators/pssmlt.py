@@ -39,7 +39,8 @@ sample and one light subpath).
      - Weight large-step proposals also as independent samples (Kelemen 2002's MIS)
        (Default: true)
    * - chains
-     - Markov chains (lanes); 0 = min(262144, max(4096, mutations / 16)) (Default: 0)
+     - Markov chains (lanes); 0 = min(262144, max(4096, mutations / 16)), at
+       most 2x the bootstrap's effective sample size (Default: 0)
    * - max_depth, rr_depth, mis, light_image, hide_emitters
      - As for ``bdpt``
 """
