@@ -174,11 +174,17 @@ def automatic_plan(mutations: int, chains: int = 0, bootstrap: int = 0) -> tuple
 def chains_for_bootstrap(planned: int, f: np.ndarray) -> int:
     """Automatic chains once the bootstrap's targets ``f`` are known: at most ESS_CHAINS
     x their effective sample size (sum f)^2 / sum f^2 (Kish's, of resampling in
-    proportion to f), at least MIN_CHAINS (or ``planned`` where fewer)."""
+    proportion to f), rounded down to a power of two, at least MIN_CHAINS (or
+    ``planned`` where fewer).  The power of two: Dr.Jit's LLVM scatter-add into an
+    array of the chains' width holds that width as a literal (a per-thread copy's
+    offset), so that every count would compile its own kernels; seeds of one scene
+    then share theirs."""
     f = f.astype(np.float64)
     square = float(np.dot(f, f))
     ess = float(f.sum()) ** 2 / square if square > 0.0 else 0.0
-    return min(planned, max(MIN_CHAINS, int(ESS_CHAINS * ess)))
+    cap = int(ESS_CHAINS * ess)
+    cap = 1 << (cap.bit_length() - 1) if cap > 0 else 0
+    return min(planned, max(MIN_CHAINS, cap))
 
 
 def mlt_settings(values: dict) -> tuple[dict, dict]:
@@ -349,7 +355,8 @@ class MLTRenderer:
             self.iterations = max(1, round(self.mutations / self.chains))
         dist = mi.DiscreteDistribution(mi.Float(f_np.astype(np.float32)))
         chain = dr.arange(mi.UInt32, self.chains)
-        u = (mi.Float(chain) + pss.hash_uniform(self._key(0xB1), chain, 0)) / self.chains
+        u = ((mi.Float(chain) + pss.hash_uniform(self._key(0xB1), chain, 0))
+             / dr.opaque(mi.Float, self.chains))
         pick = dist.sample(dr.minimum(u, 0.99999994))
         self.start_states = len(np.unique(pick.numpy()))
         camera_u = pss.hashed_vectors(keys[0], pick, self.dims[0])

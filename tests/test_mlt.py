@@ -95,13 +95,16 @@ def test_automatic_plan():
 
 def test_chains_capped_by_the_bootstrap():
     """Automatic chains are at most ESS_CHAINS x the bootstrap's effective sample size
-    (sum f)^2 / sum f^2, and at least MIN_CHAINS (or the plan, where smaller)."""
+    (sum f)^2 / sum f^2 rounded down to a power of two, and at least MIN_CHAINS (or the
+    plan, where smaller)."""
+    assert mlt.ESS_CHAINS == 2.0
     flat = np.ones(100000)
-    assert mlt.chains_for_bootstrap(262144, flat) == int(mlt.ESS_CHAINS * 100000)
+    assert mlt.chains_for_bootstrap(262144, flat) == 131072       # 200000 rounded down
+    assert mlt.chains_for_bootstrap(100000, flat) == 100000
     assert mlt.chains_for_bootstrap(1000, flat) == 1000
     sparse = np.zeros(100000)
     sparse[:20000] = 3.0                                  # 20000 equal nonzero samples
-    assert mlt.chains_for_bootstrap(262144, sparse) == int(mlt.ESS_CHAINS * 20000)
+    assert mlt.chains_for_bootstrap(262144, sparse) == 32768      # 40000 rounded down
     sparse[:1000] = 0.0
     sparse[:10] = 1e4                                     # a heavy tail: ESS ~ 10.4
     assert mlt.chains_for_bootstrap(262144, sparse) == mlt.MIN_CHAINS
@@ -168,6 +171,29 @@ def test_no_kernel_per_iteration_or_seed():
         dr.kernel_history()
         _mlt(scene, 2, mutations_per_pixel=8)
         entries = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
+    new = [e for e in entries if not e.get("cache_hit", 1) or e.get("cache_disk", 0)]
+    assert entries and not new, "%d kernels compiled" % len(new)
+
+
+def test_no_kernel_per_seed_with_automatic_chains():
+    """Where the bootstrap's effective sample size caps the automatic chains (door, 0.02
+    gap: 2x ESS is 18865 and 18973 for seeds 1 and 2), a second seed's render compiles
+    nothing (it compiled 3 kernels when the cap was not a power of two)."""
+    scene = mi.load_file(str(SCENES / "door-ajar.xml"), resx=16, resy=16, gap_start=0.48)
+
+    def start(seed):
+        r = mlt.MLTRenderer(scene, seed=seed, mutations_per_pixel=4096, max_depth=6)
+        for _ in range(2):
+            r.run_iteration()
+        r.tensor()
+        return r.chains
+
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        first = start(1)
+        dr.kernel_history()
+        second = start(2)
+        entries = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
+    assert first == second == 16384 < mlt.automatic_plan(4096 * 256)[0]
     new = [e for e in entries if not e.get("cache_hit", 1) or e.get("cache_disk", 0)]
     assert entries and not new, "%d kernels compiled" % len(new)
 
