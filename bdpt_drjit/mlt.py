@@ -67,12 +67,31 @@ PER_DEPTH, CAMERA_START, LIGHT_START = 6, 6, 7
 # automatic.
 MLT_PARAMS = {"mutations_per_pixel": 0, "large_step_probability": 0.3,
               "bootstrap_samples": 0, "chains": 0, "large_step_mis": True}
-# Automatic bootstrap: at least this many samples per chain.  Chains drawn from too few
-# start on the same states and stay correlated where f is heavy-tailed: door-ajar.xml
-# with a 0.01 gap (1.3% of samples nonzero), 16384 chains from 100000 samples started
-# on 1225 distinct states; at equal time (15 s, 64x64) relMSE 2.5 against 0.80 from
-# 400000 samples.
-BOOTSTRAP_PER_CHAIN = 32
+# Automatic chains and bootstrap (automatic_plan).  The image's error is mostly the
+# chains' start: a chain forgets its bootstrap state only through accepted large steps
+# (door-ajar.xml: large steps accepted 10%, small steps 51%; about one large step
+# accepted in 32 iterations), so independent chains and distinct start states count
+# more than a chain's length.  door-ajar.xml 64x64, 256 mutations per pixel (1M),
+# relMSE: 16384 chains from 512K bootstrap samples 0.051; 65536 from 512K 0.040, from
+# 2M 0.031; 262144 from 1M 0.030, from 2M 0.019, from 4M 0.015 (benchmarks/RESULTS.md).
+# Hence short chains (CHAIN_MUTATIONS iterations when the mutations allow) and a
+# bootstrap of BOOTSTRAP_PER_CHAIN samples per chain, a third of the evaluations of a
+# render of the planned mutations.  Too few bootstrap samples per chain start chains on
+# the same states where f is heavy-tailed (door-ajar.xml with a 0.01 gap: 16384 chains
+# from 100000 samples started on 1225 distinct states).
+# Where f is heavy-tailed, more chains than the bootstrap has distinct states to start
+# on only repeat them: automatic chains are also at most ESS_CHAINS x the bootstrap's
+# effective sample size (chains_for_bootstrap).  door-ajar.xml with a 0.01 gap (1.3% of
+# samples nonzero, E[f^2] / E[f]^2 = 199: 10.5K effective of 2M), 1024 mutations per
+# pixel from 2M bootstrap samples, relMSE 0.35 / 0.23 / 0.18 with 262144 / 65536 / 16384
+# chains; with the 0.05 gap (E[f^2] / E[f]^2 = 11.7: 179K of 2M) 524288 / 262144 /
+# 131072 chains gave 0.018 / 0.019 / 0.024 at 256 mutations per pixel.
+CHAIN_MUTATIONS = 16
+BOOTSTRAP_PER_CHAIN = 8
+MAX_CHAINS = 1 << 18
+MIN_BOOTSTRAP = 100000
+MIN_CHAINS = 4096
+ESS_CHAINS = 2.0
 BOOTSTRAP_LANES = 1 << 16       # lanes of a bootstrap batch (at least the chains)
 BDPT_PARAMS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
 
@@ -141,6 +160,33 @@ class Chains:
         dr.eval(self.camera_u, self.light_u, self.f, self.camera, self.splats)
 
 
+def automatic_plan(mutations: int, chains: int = 0, bootstrap: int = 0) -> tuple[int, int]:
+    """(chains, bootstrap samples) for a render of ``mutations`` mutations; 0 is
+    automatic: min(MAX_CHAINS, max(4096, mutations / CHAIN_MUTATIONS)) chains (fewer
+    lanes cost more per mutation: 16.7 against 7.8 us at 4096 and 16384 chains), never
+    more than the mutations, and max(MIN_BOOTSTRAP, BOOTSTRAP_PER_CHAIN x chains)
+    bootstrap samples (see the constants)."""
+    chains = min(chains or min(MAX_CHAINS, max(MIN_CHAINS, mutations // CHAIN_MUTATIONS)),
+                 mutations)
+    return chains, bootstrap or max(MIN_BOOTSTRAP, BOOTSTRAP_PER_CHAIN * chains)
+
+
+def chains_for_bootstrap(planned: int, f: np.ndarray) -> int:
+    """Automatic chains once the bootstrap's targets ``f`` are known: at most ESS_CHAINS
+    x their effective sample size (sum f)^2 / sum f^2 (Kish's, of resampling in
+    proportion to f), rounded down to a power of two, at least MIN_CHAINS (or
+    ``planned`` where fewer).  The power of two: Dr.Jit's LLVM scatter-add into an
+    array of the chains' width holds that width as a literal (a per-thread copy's
+    offset), so that every count would compile its own kernels; seeds of one scene
+    then share theirs."""
+    f = f.astype(np.float64)
+    square = float(np.dot(f, f))
+    ess = float(f.sum()) ** 2 / square if square > 0.0 else 0.0
+    cap = int(ESS_CHAINS * ess)
+    cap = 1 << (cap.bit_length() - 1) if cap > 0 else 0
+    return min(planned, max(MIN_CHAINS, cap))
+
+
 def mlt_settings(values: dict) -> tuple[dict, dict]:
     """(MLT parameters, BDPT settings) from keyword values; refuses the BDPT
     parameters that have no meaning for a chain's sample (budgets, techniques)."""
@@ -207,20 +253,18 @@ class MLTRenderer:
         self.large_step_mis = mlt["large_step_mis"]
         mpp = mlt["mutations_per_pixel"] or self.sensor.sampler().sample_count()
         self.mutations = mpp * self.pixels
-        # Automatic: chains of at least 64 mutations, 4096 to 65536 of them (fewer
-        # lanes cost more per mutation: 16.7 against 7.8 us at 4096 and 16384 chains,
-        # door-ajar.xml 64x64 on 2 loaded cores; longer chains exploit more).
-        self.chains = min(mlt["chains"] or min(1 << 16, max(4096, self.mutations // 64)),
-                          self.mutations)
+        self.chains, self.bootstrap_samples = automatic_plan(
+            self.mutations, mlt["chains"], mlt["bootstrap_samples"])
+        self.automatic_chains = mlt["chains"] == 0     # capped by the bootstrap's ESS
         self.iterations = max(1, round(self.mutations / self.chains))
-        self.bootstrap_samples = (mlt["bootstrap_samples"]
-                                  or max(100000, BOOTSTRAP_PER_CHAIN * self.chains))
         depths = STORED_DEPTHS if self.settings.max_depth < 0 else min(
             self.settings.max_depth, STORED_DEPTHS)
         self.dims = (CAMERA_START + PER_DEPTH * depths, LIGHT_START + PER_DEPTH * depths)
         self._capacity = [4, 5]          # pool records per light subpath, raised on overflow
         self.iterations_done, self.time, self.rays = 0, 0.0, 0
         self.acceptance = []             # mean acceptance per iteration
+        # sums of a and counts of proposals: small steps, large steps (no host sync)
+        self._tally = dr.zeros(mi.Float, 4)
         self.start_states = 0            # distinct bootstrap samples the chains start on
         start = time.perf_counter()
         self.b, self.state = self.bootstrap()
@@ -306,9 +350,13 @@ class MLTRenderer:
         b = float(f_np.mean())
         if b <= 0.0:
             return 0.0, None
+        if self.automatic_chains:
+            self.chains = chains_for_bootstrap(self.chains, f_np)
+            self.iterations = max(1, round(self.mutations / self.chains))
         dist = mi.DiscreteDistribution(mi.Float(f_np.astype(np.float32)))
         chain = dr.arange(mi.UInt32, self.chains)
-        u = (mi.Float(chain) + pss.hash_uniform(self._key(0xB1), chain, 0)) / self.chains
+        u = ((mi.Float(chain) + pss.hash_uniform(self._key(0xB1), chain, 0))
+             / dr.opaque(mi.Float, self.chains))
         pick = dist.sample(dr.minimum(u, 0.99999994))
         self.start_states = len(np.unique(pick.numpy()))
         camera_u = pss.hashed_vectors(keys[0], pick, self.dims[0])
@@ -355,8 +403,25 @@ class MLTRenderer:
             self._put(records, w)
         accepted = pss.hash_uniform(step_key, chain, 1) < a
         mean_a = dr.mean(a)
+        self._count(a, large)
         x.accept(accepted, camera_u, light_u, ev, dims)
         self.acceptance.append(float(mean_a[0]))
+
+    def _count(self, a: mi.Float, large: mi.Bool) -> None:
+        """Adds the iteration's acceptance sums and proposal counts of small and large
+        steps to the tally (evaluated, no host sync)."""
+        one = dr.select(large, 1.0, 0.0)
+        sums = [dr.sum(a * (1.0 - one)), dr.sum(1.0 - one), dr.sum(a * one), dr.sum(one)]
+        idx = dr.arange(mi.UInt32, 4)
+        add = dr.select(idx == 0, sums[0], dr.select(idx == 1, sums[1],
+                        dr.select(idx == 2, sums[2], sums[3])))
+        self._tally = self._tally + add
+        dr.eval(self._tally)
+
+    def step_acceptance(self) -> tuple[float, float]:
+        """The mean acceptance of small and of large steps so far (0 where none)."""
+        t = self._tally.numpy()
+        return (float(t[0] / t[1]) if t[1] else 0.0, float(t[2] / t[3]) if t[3] else 0.0)
 
     def _put(self, records: Records, w: mi.Float) -> None:
         """Records on the film, each times its chain's weight (the film's scale is
@@ -389,6 +454,8 @@ class MLTRenderer:
                                    "start_states": self.start_states,
                                    "acceptance": float(np.mean(self.acceptance))
                                    if self.acceptance else 0.0,
+                                   "acceptance_small": self.step_acceptance()[0],
+                                   "acceptance_large": self.step_acceptance()[1],
                                    "budget": "pssmlt", "decision": "pssmlt (BDPT samples)"})
 
 

@@ -1,12 +1,13 @@
 """PSSMLT against BDPT at equal time on scenes/door-ajar.xml (issue 31).
 
     python -m benchmarks.mlt_door [--seconds 15] [--runs 4] [--res 64] [--ref-spp 4096]
-    python -m benchmarks.mlt_door --scene scenes/cornell-box.xml --seconds 5   # an easy scene
+    python -m benchmarks.mlt_door --scene scenes/cornell-box.xml --seconds 5 --plan-mpp 256
 
 Each round renders every method once for ``--seconds`` (interleaved, so that the
 machine's load falls on all alike): ``pssmlt`` (its bootstrap included in its time),
-the default ``bdpt`` (auto budget, its pilot included) and Veach's BDPT
-(light_paths=1 connections=all); each stops after the pass or iteration that crosses
+the default ``bdpt`` (auto budget, its pilot included), Veach's BDPT
+(light_paths=1 connections=all) and Mitsuba's ``path`` (in ``--methods``; renders of
+16 spp averaged); ``--mlt K=V,...`` adds pssmlt methods with other parameters.  Each stops after the pass or iteration that crosses
 the time, with an image normalized for what it did.  The reference is the mean of 8
 BDPT renders (``--ref-spp`` in all); its own noise is estimated from their spread and
 reported.  relMSE = mean over pixels of (I - R)^2 / (R^2 + eps), on the luminance,
@@ -38,13 +39,27 @@ def timed_bdpt(scene, seconds, seed, **settings):
     return _lum(res.image), res.time, res.spp
 
 
-def timed_mlt(scene, seconds, seed, mis=True, chains=16384, bootstrap=0):
-    r = mlt.MLTRenderer(scene, seed=seed, max_depth=8, mutations_per_pixel=1 << 16,
-                        chains=chains, large_step_mis=mis, bootstrap_samples=bootstrap)
-    while not r.done and r.time < seconds:
-        r.run_iteration()
+def timed_mlt(scene, seconds, seed, mis=True, chains=0, bootstrap=0, **params):
+    kw = dict(max_depth=8, mutations_per_pixel=1 << 16, chains=chains, large_step_mis=mis,
+              bootstrap_samples=bootstrap)
+    r = mlt.MLTRenderer(scene, seed=seed, **{**kw, **params})
+    while not r.done and (r.iterations_done == 0 or r.time < seconds):
+        r.run_iteration()           # at least one iteration, as the CLI's --time
     res = r.result()
     return _lum(res.image), res.time, res.stats["mutations_per_pixel"]
+
+
+def timed_path(scene, seconds, seed, chunk=16):
+    """Mitsuba's ``path`` (max_depth 8) in renders of ``chunk`` spp, averaged, until the
+    time is crossed (the first render's compilation included, as for the others)."""
+    integ = mi.load_dict({"type": "path", "max_depth": 8})
+    total, renders, start = None, 0, time.perf_counter()
+    while renders == 0 or time.perf_counter() - start < seconds:
+        img = np.array(mi.render(scene, integrator=integ, spp=chunk,
+                                 seed=(seed << 16) + renders))
+        total = img if total is None else total + img
+        renders += 1
+    return _lum(total / renders), time.perf_counter() - start, chunk * renders
 
 
 def main(argv=None):
@@ -57,9 +72,15 @@ def main(argv=None):
     ap.add_argument("--scene", default="scenes/door-ajar.xml",
                     help="another scene (its own parameters; --gap-start is door-ajar's)")
     ap.add_argument("--no-mis", action="store_true", help="pssmlt without large-step MIS")
-    ap.add_argument("--chains", type=int, default=16384)
+    ap.add_argument("--chains", type=int, default=0, help="0: automatic (mlt.py)")
     ap.add_argument("--bootstrap", type=int, default=0, help="0: automatic (mlt.py)")
+    ap.add_argument("--plan-mpp", type=int, default=0,
+                    help="chains and bootstrap (where 0) as pssmlt chooses them for a render "
+                         "of this many mutations per pixel (0: unbounded, the maximum)")
     ap.add_argument("--methods", default="pssmlt,bdpt (auto),bdpt (Veach)")
+    ap.add_argument("--mlt", action="append", default=[], metavar="K=V,K=V",
+                    help="a further pssmlt method with these parameters (repeatable), e.g. "
+                         "chains=16384,bootstrap_samples=524288")
     args = ap.parse_args(argv)
     door = Path(args.scene).name == "door-ajar.xml"
     scene = mi.load_file(args.scene, resx=args.res, resy=args.res,
@@ -76,14 +97,26 @@ def main(argv=None):
     ref = np.mean(refs, axis=0)
     ref_var = np.var(refs, axis=0, ddof=1) / 8
     eps = (0.01 * ref.mean()) ** 2
-    print("reference: %d spp of bdpt in %.0f s, mean %.6g; its own relMSE ~ %.4g"
-          % (args.ref_spp, time.perf_counter() - t0, ref.mean(), np.mean(ref_var / (ref ** 2 + eps))))
+    ref_err = float(np.mean(ref_var / (ref ** 2 + eps)))
+    print("reference: %d spp of bdpt in %.0f s, mean %.6g; its own relMSE ~ %.4g (in every "
+          "figure below; 'less ref' subtracts it)"
+          % (args.ref_spp, time.perf_counter() - t0, ref.mean(), ref_err))
+    if args.plan_mpp:
+        chains, boot = mlt.automatic_plan(args.plan_mpp * args.res * args.res, args.chains,
+                                          args.bootstrap)
+        args.chains, args.bootstrap = chains, boot
     methods = {"pssmlt": lambda s: timed_mlt(scene, args.seconds, s, not args.no_mis,
                                              args.chains, args.bootstrap),
                "bdpt (auto)": lambda s: timed_bdpt(scene, args.seconds, s),
                "bdpt (Veach)": lambda s: timed_bdpt(scene, args.seconds, s, light_paths=1,
-                                                    connections="all")}
+                                                    connections="all"),
+               "path": lambda s: timed_path(scene, args.seconds, s)}
     methods = {m: go for m, go in methods.items() if m in args.methods.split(",")}
+    for extra in args.mlt:
+        params = {k: float(v) if "." in v else int(v)
+                  for k, v in (kv.split("=") for kv in extra.split(","))}
+        methods["pssmlt[%s]" % extra] = (lambda p: lambda s: timed_mlt(
+            scene, args.seconds, s, not args.no_mis, **p))(params)
     errors = {m: [] for m in methods}
     mse = {m: [] for m in methods}
     for run in range(args.runs):
@@ -97,9 +130,12 @@ def main(argv=None):
     first = next(iter(methods)) if "bdpt (auto)" not in methods else "bdpt (auto)"
     base, base2 = np.mean(errors[first]), np.mean(mse[first])
     for name, e in errors.items():
-        print("%-13s relMSE %.4g +- %.2g (%d runs), %.2fx %s; MSE/mean^2 %.4g, %.2fx"
+        print("%-13s relMSE %.4g +- %.2g (%d runs), %.2fx %s; median %.4g, %.2fx; less ref "
+              "%.2fx; MSE/mean^2 %.4g, %.2fx"
               % (name, np.mean(e), np.std(e, ddof=1) / np.sqrt(len(e)), len(e),
-                 np.mean(e) / base, first, np.mean(mse[name]), np.mean(mse[name]) / base2))
+                 np.mean(e) / base, first, np.median(e), np.median(e) / np.median(errors[first]),
+                 (np.mean(e) - ref_err) / (base - ref_err),
+                 np.mean(mse[name]), np.mean(mse[name]) / base2))
 
 
 if __name__ == "__main__":

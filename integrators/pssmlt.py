@@ -33,13 +33,14 @@ sample and one light subpath).
    * - large_step_probability
      - Probability of a large step (Default: 0.3; Mitsuba 0.6: ``pLarge``)
    * - bootstrap_samples
-     - Independent samples that estimate b and seed the chains; 0 = max(100000, 32 x
+     - Independent samples that estimate b and seed the chains; 0 = max(100000, 8 x
        chains) (Default: 0; Mitsuba 0.6: ``luminanceSamples``)
    * - large_step_mis
      - Weight large-step proposals also as independent samples (Kelemen 2002's MIS)
        (Default: true)
    * - chains
-     - Markov chains (lanes); 0 = min(65536, max(4096, mutations / 64)) (Default: 0)
+     - Markov chains (lanes); 0 = min(262144, max(4096, mutations / 16)), at
+       most 2x the bootstrap's effective sample size (Default: 0)
    * - max_depth, rr_depth, mis, light_image, hide_emitters
      - As for ``bdpt``
 """

@@ -74,6 +74,82 @@ def test_image_sum_is_b_at_every_iteration():
     assert 0.5 < r.result().stats["acceptance"] < 1.0
 
 
+def test_automatic_plan():
+    """Automatic chains: short chains (CHAIN_MUTATIONS mutations each) between 4096 and
+    MAX_CHAINS lanes, never more chains than mutations; the bootstrap has
+    BOOTSTRAP_PER_CHAIN samples per chain (at least MIN_BOOTSTRAP); given values stay."""
+    for mutations in (100, 5000, 4096 * 64, 4096 * 256, 512 * 512 * 64, 1 << 40):
+        chains, boot = mlt.automatic_plan(mutations)
+        assert chains <= mutations and chains <= mlt.MAX_CHAINS
+        assert chains == mutations or chains >= 4096
+        if 4096 * mlt.CHAIN_MUTATIONS <= mutations <= mlt.MAX_CHAINS * mlt.CHAIN_MUTATIONS:
+            assert chains == mutations // mlt.CHAIN_MUTATIONS
+        assert boot == max(mlt.MIN_BOOTSTRAP, mlt.BOOTSTRAP_PER_CHAIN * chains)
+    assert mlt.automatic_plan(1 << 40) == (mlt.MAX_CHAINS, 8 * mlt.MAX_CHAINS)
+    assert mlt.automatic_plan(10 ** 6, 1000, 5000) == (1000, 5000)
+    r = mlt.MLTRenderer(_box(), seed=1, mutations_per_pixel=64, max_depth=5)
+    # the box's f is nearly flat: the bootstrap's effective sample size caps nothing
+    assert (r.chains, r.bootstrap_samples) == mlt.automatic_plan(64 * 256)
+    assert r.iterations == 4
+
+
+def test_chains_capped_by_the_bootstrap():
+    """Automatic chains are at most ESS_CHAINS x the bootstrap's effective sample size
+    (sum f)^2 / sum f^2 rounded down to a power of two, and at least MIN_CHAINS (or the
+    plan, where smaller)."""
+    assert mlt.ESS_CHAINS == 2.0
+    flat = np.ones(100000)
+    assert mlt.chains_for_bootstrap(262144, flat) == 131072       # 200000 rounded down
+    assert mlt.chains_for_bootstrap(100000, flat) == 100000
+    assert mlt.chains_for_bootstrap(1000, flat) == 1000
+    sparse = np.zeros(100000)
+    sparse[:20000] = 3.0                                  # 20000 equal nonzero samples
+    assert mlt.chains_for_bootstrap(262144, sparse) == 32768      # 40000 rounded down
+    sparse[:1000] = 0.0
+    sparse[:10] = 1e4                                     # a heavy tail: ESS ~ 10.4
+    assert mlt.chains_for_bootstrap(262144, sparse) == mlt.MIN_CHAINS
+    assert mlt.chains_for_bootstrap(262144, np.zeros(10)) == mlt.MIN_CHAINS
+    # the door with a narrow gap: few of the bootstrap's samples carry light, so the
+    # renderer runs fewer, longer chains than planned; given chains stay as they are
+    scene = mi.load_file(str(SCENES / "door-ajar.xml"), resx=32, resy=32, gap_start=0.49)
+    r = mlt.MLTRenderer(scene, seed=1, mutations_per_pixel=1024, max_depth=8)
+    planned, boot = mlt.automatic_plan(1024 * 1024)
+    assert r.bootstrap_samples == boot and mlt.MIN_CHAINS <= r.chains < planned // 4
+    assert r.iterations == round(1024 * 1024 / r.chains)
+    r = mlt.MLTRenderer(scene, seed=1, mutations_per_pixel=1024, chains=planned,
+                        bootstrap_samples=65536, max_depth=8)
+    assert r.chains == planned
+
+
+def test_acceptance_of_small_and_large_steps():
+    """The tally of small and large steps: large steps only count no small ones and
+    the reverse; the mean acceptance per iteration is the proposals' mean of both."""
+    scene = _box()
+    kw = dict(mutations_per_pixel=8, bootstrap_samples=8192, chains=512, max_depth=5)
+    small = _mlt(scene, 1, large_step_probability=0.0, **kw).stats
+    large = _mlt(scene, 1, large_step_probability=1.0, **kw).stats
+    assert small["acceptance_large"] == 0.0 and 0.0 < small["acceptance_small"] < 1.0
+    assert large["acceptance_small"] == 0.0 and 0.0 < large["acceptance_large"] < 1.0
+    assert abs(small["acceptance_small"] - small["acceptance"]) < 1e-5
+    assert abs(large["acceptance_large"] - large["acceptance"]) < 1e-5
+    r = mlt.MLTRenderer(scene, seed=2, **kw)
+    while not r.done:
+        r.run_iteration()
+    t = r._tally.numpy()
+    assert t[1] + t[3] == 512 * r.iterations_done
+    assert abs((t[0] + t[2]) / (t[1] + t[3]) - np.mean(r.acceptance)) < 1e-5
+    # small steps of a diffuse box are accepted more often than independent proposals
+    assert r.step_acceptance()[0] > r.step_acceptance()[1] > 0.0
+
+
+def test_benchmark_renders_at_least_one_iteration():
+    """benchmarks/mlt_door.py at equal time: a bootstrap that outlasts the time still
+    gets one iteration, as the CLI's --time (it returned a black image before)."""
+    from benchmarks import mlt_door
+    img, seconds, mpp = mlt_door.timed_mlt(_box(), 0.0, 1, chains=256, bootstrap=4096)
+    assert mpp == 1 and img.mean() > 0
+
+
 def test_unbounded_depth_and_filters():
     """max_depth -1 (coordinates past the stored depths are fresh numbers each
     evaluation) and a gaussian filter (splatted records) agree with BDPT."""
@@ -95,6 +171,29 @@ def test_no_kernel_per_iteration_or_seed():
         dr.kernel_history()
         _mlt(scene, 2, mutations_per_pixel=8)
         entries = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
+    new = [e for e in entries if not e.get("cache_hit", 1) or e.get("cache_disk", 0)]
+    assert entries and not new, "%d kernels compiled" % len(new)
+
+
+def test_no_kernel_per_seed_with_automatic_chains():
+    """Where the bootstrap's effective sample size caps the automatic chains (door, 0.02
+    gap: 2x ESS is 18865 and 18973 for seeds 1 and 2), a second seed's render compiles
+    nothing (it compiled 3 kernels when the cap was not a power of two)."""
+    scene = mi.load_file(str(SCENES / "door-ajar.xml"), resx=16, resy=16, gap_start=0.48)
+
+    def start(seed):
+        r = mlt.MLTRenderer(scene, seed=seed, mutations_per_pixel=4096, max_depth=6)
+        for _ in range(2):
+            r.run_iteration()
+        r.tensor()
+        return r.chains
+
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        first = start(1)
+        dr.kernel_history()
+        second = start(2)
+        entries = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
+    assert first == second == 16384 < mlt.automatic_plan(4096 * 256)[0]
     new = [e for e in entries if not e.get("cache_hit", 1) or e.get("cache_disk", 0)]
     assert entries and not new, "%d kernels compiled" % len(new)
 

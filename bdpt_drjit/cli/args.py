@@ -203,12 +203,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="probability of a large step (default 0.3)")
     t.add_argument("--bootstrap-samples", type=int_at_least(1), metavar="N",
                    help="independent samples estimating b and seeding the chains (default 0: "
-                   "max(100000, 32 x chains))")
+                   "max(100000, 8 x chains))")
     t.add_argument("--no-large-step-mis", dest="large_step_mis", action="store_false",
                    default=None, help="weight large steps as chain states only (no "
                    "Kelemen MIS; the image's sum is then b N at every iteration)")
     t.add_argument("--chains", type=int_at_least(0), metavar="N",
-                   help="Markov chains (default 0: min(65536, max(4096, mutations / 64)))")
+                   help="Markov chains (default 0: min(262144, max(4096, mutations / 16)), at most "
+                   "2x the bootstrap's effective sample size)")
     t.add_argument("--max-depth", type=int_at_least(-1), help="longest path in edges (-1: unbounded)")
     t.add_argument("--rr-depth", type=int_at_least(1), help="vertex where Russian roulette starts")
     t.add_argument("--mis", choices=("power", "balance", "uniform"), help="MIS heuristic")
