@@ -55,7 +55,8 @@ def emission_hit(ctx, state, v):
     if ctx.moments is not None:
         direct_pdf_a = ctx.weights.direct_pdf_a(from_pinhole, nee_pdf_a, pos_pdf_a)
         state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, contrib, *mis.groups_emission_hit(
-            state.d_vcm, state.d_vc, state.d_end, from_pinhole, direct_pdf_a, emission_pdf_aw), hit)
+            state.d_vcm, state.d_vc, state.d_end, from_pinhole, direct_pdf_a, emission_pdf_aw,
+            state.d_vm_or_0), hit)
     return contrib
 
 
@@ -83,11 +84,15 @@ def environment_hit(ctx, state, flight):
                                            nee_pdf_w, emission_pdf_aw)
     contrib = dr.select(active, finite(contrib), 0.0)
     if ctx.moments is not None:        # an escape at once has no rival: all path tracing
-        u_pt, u_lt = mis.groups_emission_hit(d_vcm, d_vc, d_end, False,
-                                             nee_pdf_w, emission_pdf_aw)
+        d_vm = state.d_vm_or_0
+        if ctx.media.present and state.d_vm is not None:
+            d_vm = d_vm * flight.dens_rev / flight.dens_fwd
+        u_pt, u_lt, u_vm = mis.groups_emission_hit(d_vcm, d_vc, d_end, False,
+                                                   nee_pdf_w, emission_pdf_aw, d_vm)
         first = state.depth == 1
         state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, contrib,
-                                     dr.select(first, 1.0, u_pt), dr.select(first, 0.0, u_lt), active)
+                                     dr.select(first, 1.0, u_pt), dr.select(first, 0.0, u_lt),
+                                     dr.select(first, 0.0, u_vm), active)
     return contrib
 
 
@@ -129,7 +134,7 @@ def next_event(ctx, state, v, sample, active):
             state.d_vcm, state.d_vc, state.d_end, state.depth == 1,
             dr.select(ds.delta, 0.0, bsdf_pdf_w / nee_pdf_w),
             emission_pdf_aw * cos_cam / (nee_pdf_w * cos_light), bsdf_rev_w,
-            ctx.weights.rate(state.depth)), active)
+            ctx.weights.rate(state.depth), state.d_vm_or_0, ctx.weights.vm(v.surface)), active)
     return contrib, rays
 
 
@@ -236,5 +241,6 @@ def connect_vertices(ctx, light, active, cam, v_c):
         groups = mis.groups_connect(light, light.s == 2, cam.d_vcm, cam.d_vc, cam.d_end,
                                     cam.depth == 1, pdf_c_a, rev_c_w, pdf_l_a, rev_l_w,
                                     weights.rate(light.s - 1), weights.rate(cam.depth),
-                                    weights.kappa)
+                                    weights.kappa, cam.d_vm_or_0, weights.vm(v_l.surface),
+                                    weights.vm(v_c.surface))
     return contrib, rays, groups

@@ -555,40 +555,78 @@ def end_after_scatter(d_end, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta, 
     return dr.select(delta, delta_prev, _div(cos_out, pdf_fwd_w) * prev)
 
 
-def _shares(pt, lt, total):
-    return _div(pt, total), _div(lt, total)
+# Merging's share (u_vm): the eta terms of a chain are its merges, so a third scalar
+# per subpath, d_vm, carries the part of d_vc that eta put there (d_vc is affine in eta
+# under the balance heuristic): it follows d_vc's recursion without the d_vcm term
+# (``vm_after_scatter``; ``vm_after_hit`` is d_vc's conversion).  It is 0 at both
+# subpaths' starts (y_0 and z_0 never merge).  A strategy's merging share is then its
+# d_vm terms and its own endpoints' eta terms over its balance total.
+
+def vm_after_hit(d_vm, dist2, cos_hit, dens_fwd=1.0, dens_rev=1.0):
+    """d_vm at the vertex just found (d_vc's part of ``after_hit``)."""
+    return d_vm * dens_rev * _div(1.0, cos_hit * dens_fwd)
 
 
-def groups_emission_hit(d_vcm, d_vc, d_end, from_pinhole, direct_pdf, emission_pdf):
+def vm_after_scatter(d_vm, cos_out, pdf_fwd_w, pdf_rev_w, delta, m_vm):
+    """d_vm after scattering (``after_scatter``'s d_vc with d_vcm's term left out);
+    ``m_vm``: eta where this vertex could merge."""
+    return dr.select(delta, d_vm * cos_out, _div(cos_out, pdf_fwd_w) * (d_vm * pdf_rev_w + m_vm))
+
+
+def _shares(pt, lt, vm, total):
+    return _div(pt, total), _div(lt, total), _div(vm, total)
+
+
+def groups_emission_hit(d_vcm, d_vc, d_end, from_pinhole, direct_pdf, emission_pdf, d_vm=0.0):
     """s = 0; from the pinhole the only rival is (1,1), a light-image strategy."""
     rival = direct_pdf * d_vcm
     total = 1.0 + rival + emission_pdf * d_vc
     return _shares(dr.select(from_pinhole, 1.0, 1.0 + rival),
-                   dr.select(from_pinhole, rival, emission_pdf * d_end), total)
+                   dr.select(from_pinhole, rival, emission_pdf * d_end),
+                   dr.select(from_pinhole, 0.0, emission_pdf * d_vm), total)
 
 
-def groups_nee(d_vcm, d_vc, d_end, first, w_light, camera_ratio, bsdf_rev_w, m_vcm=1.0):
-    total = w_light + 1.0 + camera_ratio * (m_vcm * d_vcm + d_vc * bsdf_rev_w)
+def groups_nee(d_vcm, d_vc, d_end, first, w_light, camera_ratio, bsdf_rev_w, m_vcm=1.0,
+               d_vm=0.0, m_vm=0.0):
+    total = w_light + 1.0 + camera_ratio * (m_vcm * d_vcm + d_vc * bsdf_rev_w + m_vm)
     lt = camera_ratio * dr.select(first, d_end, d_end * bsdf_rev_w)
-    return _shares(w_light + 1.0, lt, total)
+    return _shares(w_light + 1.0, lt, camera_ratio * (d_vm * bsdf_rev_w + m_vm), total)
 
 
 def groups_light_image(d_vcm, d_vc, d_end, first, cam_pdf_a, bsdf_rev_w, light_ratio=1.0,
-                       m_vcm=1.0):
+                       m_vcm=1.0, d_vm=0.0, m_vm=0.0):
     """``cam_pdf_a`` unscaled: the light image's rate divides it, as in its weight."""
     cam_pdf_a = cam_pdf_a / light_ratio
     chain = m_vcm * d_vcm + d_vc * bsdf_rev_w
     pt = cam_pdf_a * dr.select(first, chain, d_end * bsdf_rev_w)
-    return _shares(pt, 1.0, 1.0 + cam_pdf_a * chain)
+    return _shares(pt, 1.0, cam_pdf_a * (d_vm * bsdf_rev_w + m_vm),
+                   1.0 + cam_pdf_a * (chain + m_vm))
 
 
 def groups_connect(light, light_first, cam_d_vcm, cam_d_vc, cam_d_end, cam_first,
                    cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w,
-                   m_light_vcm=1.0, m_cam_vcm=1.0, kappa=1.0):
+                   m_light_vcm=1.0, m_cam_vcm=1.0, kappa=1.0, cam_d_vm=0.0,
+                   m_light_vm=0.0, m_cam_vm=0.0):
     """Relative to the connection's own density kappa p (``weight_connect``)."""
     light_chain = m_light_vcm * light.d_vcm + light.d_vc * light_bsdf_rev_w
-    total = kappa + (cam_bsdf_pdf_a * light_chain
-                     + light_bsdf_pdf_a * (m_cam_vcm * cam_d_vcm + cam_d_vc * cam_bsdf_rev_w))
+    cam_chain = m_cam_vcm * cam_d_vcm + cam_d_vc * cam_bsdf_rev_w
+    total = kappa + (cam_bsdf_pdf_a * (light_chain + m_light_vm)
+                     + light_bsdf_pdf_a * (cam_chain + m_cam_vm))
     pt = cam_bsdf_pdf_a * dr.select(light_first, light_chain, light.d_end * light_bsdf_rev_w)
     lt = light_bsdf_pdf_a * dr.select(cam_first, cam_d_end, cam_d_end * cam_bsdf_rev_w)
-    return _shares(pt, lt, total)
+    vm = (cam_bsdf_pdf_a * (light.d_vm * light_bsdf_rev_w + m_light_vm)
+          + light_bsdf_pdf_a * (cam_d_vm * cam_bsdf_rev_w + m_cam_vm))
+    return _shares(pt, lt, vm, total)
+
+
+def groups_merge(light, light_first, light_rev_w, cam_d_vcm, cam_d_vc, cam_d_end, cam_d_vm,
+                 cam_first, cam_rev_w, eta, m_light_vcm=1.0, m_cam_vcm=1.0):
+    """Relative to the merge's own density eta p (``weight_merge``): its rivals are the
+    chains on both sides over eta, their far ends path tracing (light side) and the
+    light image (camera side) as in ``groups_connect``, and their d_vm terms merges."""
+    light_chain = m_light_vcm * light.d_vcm + light.d_vc * light_rev_w
+    cam_chain = m_cam_vcm * cam_d_vcm + cam_d_vc * cam_rev_w
+    total = eta + light_chain + cam_chain
+    pt = dr.select(light_first, light_chain, light.d_end * light_rev_w)
+    lt = dr.select(cam_first, cam_d_end, cam_d_end * cam_rev_w)
+    return _shares(pt, lt, eta + light.d_vm * light_rev_w + cam_d_vm * cam_rev_w, total)

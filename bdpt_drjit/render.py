@@ -81,7 +81,7 @@ class PassContext:
     stored: mi.UInt32 = None           # V, the stored light vertices of the pass
     pixel: mi.UInt32 = None            # each camera lane's crop pixel (moments)
     moments: MomentSamples | None = None   # a moment pass's contributions (optimizer.py)
-    mis_rates: tuple = (1.0, 1.0)      # N_L / N_C and kappa of the MIS weights
+    mis_rates: tuple = (1.0, 1.0, 0.0)  # N_L / N_C, kappa and eta of the MIS weights
     grid: merge.HashGrid | None = None  # merging: the pass's light vertices (merge.py)
     merge_radius: float = 0.0          # merging: this pass's radius r_i
 
@@ -212,7 +212,7 @@ def _splat_moments(ctx, store):
     items = gather(s.items, index)
     value = luminance(items.value)
     samples = MomentSample(pixel=ctx.camera.pixel_index(items.pos), f2=dr.square(value),
-                           u_pt=items.u_pt, u_lt=items.u_lt)
+                           u_pt=items.u_pt, u_lt=items.u_lt, u_vm=items.u_vm)
     dr.eval(samples)
     return samples, None, stride / r ** 2
 
@@ -321,6 +321,7 @@ class Renderer:
         lane_bytes = (_LANE_BYTES + _VERTICES_PER_LANE * RECORD_BYTES
                       + _SPLATS_PER_LANE * SPLAT_BYTES + len(layers) * 16)
         max_lanes = min(max(1024, self.settings.memory_budget // lane_bytes), 2 ** 31)
+        self._max_lanes = max_lanes     # without merging (_replan)
         if self.settings.merging and not self.settings.samples_per_pass:
             # The radius shrinks per pass (merge.py): passes of a few samples per pixel.
             max_lanes = min(max_lanes, max(merge.PASS_LANES, self.pixels))
@@ -348,7 +349,8 @@ class Renderer:
         the round gives the odd ones their sample with the budget chosen."""
         self.pilot = Pilot(mi.is_spectral,
                            self.camera.light_image_possible and self.settings.light_image,
-                           self._unit_costs or units.load() or calibrate())
+                           self._unit_costs or units.load() or calibrate(),
+                           merging=self.settings.merging)
         if self.settings.first_hits != "auto":
             light = self.settings.first_hits == "light_image"
             self.pilot.candidates = [b for b in self.pilot.candidates
@@ -370,6 +372,26 @@ class Renderer:
         self.plan = pilot_round + plan_passes(
             self.spp - spp, self.pixels, max_lanes, self.settings.samples_per_pass,
             self._accepted_count)
+
+    def _replan(self) -> None:
+        """Where the pilot of a render with merging chose no merging: the passes after
+        its round as large as the memory budget allows (small passes serve only a
+        shrinking radius; each pass costs a fixed time)."""
+        if (not self.settings.merging or self.settings.samples_per_pass or self.budget.merges
+                or not self.redecide):
+            return
+        head = self.plan[:self._pilot_round]
+        done = sum(n * spp for _, n, spp in head) // self.pixels
+        self.plan = head + plan_passes(self.spp - done, self.pixels, self._max_lanes, 0,
+                                       self._accepted_count)
+
+    def merge_eta(self, after: int) -> float:
+        """Merging's rate per light subpath per camera sample over the passes after
+        ``after``: the mean of pi r_i^2 N_C,i (merge.pass_radius), which a budget's
+        light_ratio scales to its eta (optimizer.Costs.merge_eta)."""
+        etas = [math.pi * merge.pass_radius(self.merge_radius, self.settings.radius_alpha, i) ** 2
+                * n * spp for i, (_, n, spp) in enumerate(self.plan) if i > after]
+        return float(np.mean(etas)) if etas else 0.0
 
     def _plan_rounds(self) -> None:
         """Re-decisions (optimizer.Pilot.redecide): the first pass of the plan that
@@ -479,10 +501,12 @@ class Renderer:
         # subpath of the last pass (the weights need a value before the light walk).
         rates = (n_light / lanes, budget.kappa(n_light, n_light * self._vertices_per_path))
         weights.set_rates(*rates)
-        radius = 0.0
+        radius, eta = 0.0, 0.0
         if strategies.merging and n_light > 0:      # merging at rate pi r_i^2 N_L (mis.py)
             radius = merge.pass_radius(self.merge_radius, self.settings.radius_alpha, index)
-            weights.set_merging(math.pi * radius * radius * n_light)
+            eta = math.pi * radius * radius * n_light
+            weights.set_merging(eta)
+        rates += (eta,)
         every = 1 if index < Pilot.PASSES else 2 * spp    # a later moment pass: see above
         images = StrategyImages(self.strategies, lanes) if self.strategy_images else None
         return PassContext(
@@ -514,9 +538,11 @@ class Renderer:
 
         # Stage 2: light subpaths: stored light vertices and t = 1 splats.
         store, light_rays = self._light_subpaths(ctx, index, spp)
-        if ctx.merge_radius > 0 and store is not None:
-            ctx.grid = merge.HashGrid.build(store, ctx.merge_radius, ctx.light_count)
         light_seconds = timer.lap()
+        if ctx.merge_radius > 0 and store is not None:
+            ctx.grid = merge.HashGrid.build(store, ctx.merge_radius, ctx.light_count,
+                                            shares=ctx.moments is not None)
+        grid_seconds = timer.lap()
 
         # Stage 3: camera subpaths, with every strategy t >= 2.
         cam = trace_camera_subpaths(ctx, rays, store)
@@ -531,15 +557,21 @@ class Renderer:
             self._put_splats(index, store, ctx, lanes, pixel_offset)
         self.film.camera_samples += lanes
         totals = (dr.sum(cam.rays), dr.sum(light_rays))
+        merging = self._is_pilot_pass(index) and cam.merges is not None
+        if merging:                                     # merge work, counted (optimizer.Costs)
+            totals += (dr.sum(cam.merges), dr.sum(cam.merge_items))
         dr.eval(*totals)                                # one launch, read in one sync
-        camera_rays, light_ray_count = (int(n[0]) for n in totals)
+        camera_rays, light_ray_count = (int(n[0]) for n in totals[:2])
         self.rays += camera_rays + light_ray_count
         if timer.on:
-            self.timings[index] = (light_seconds, camera_seconds)
+            self.timings[index] = (light_seconds, camera_seconds, grid_seconds)
+        if merging:
+            self.pilot.record_merging(lanes, int(totals[2][0]), int(totals[3][0]), ctx.mis_rates[2])
         if self._is_pilot_pass(index):
             self._pilot_pass(index, ctx, store, cam, camera_rays, light_ray_count, lanes)
         elif ctx.moments is not None:
             ctx.moments.count = cam.slot
+            self.pilot.costs.merge_eta = self.merge_eta(index)
             self.budget = self.pilot.redecide(
                 ctx.moments, _splat_moments(ctx, store), self._luminance(),
                 self.spp_done + n_pixels * spp / self.pixels, ctx.budget, ctx.mis_rates).budget
@@ -601,8 +633,11 @@ class Renderer:
             mean = self._luminance(sum(n * spp for _, n, spp in self.plan[:self._pilot_round])
                                    if third else None)
             filled = self._pilot_pixels(mean.shape) if third else None
+            self.pilot.pilot_eta = ctx.mis_rates[2]
+            self.pilot.costs.merge_eta = self.merge_eta(self._pilot_round - 1)
             self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean,
                                              self.plan[index][2], filled).budget
+            self._replan()
             self._plan_rounds()
 
     def _pilot_pixels(self, shape) -> np.ndarray:
@@ -737,16 +772,21 @@ def calibrate(repeats: int = 5) -> UnitCosts:
     return measured
 
 
-def _calibration_run(scene, seed: int) -> tuple:
-    """One run's unit costs, in UnitCosts' order."""
-    r = Renderer(scene, spp=16, seed=seed, max_depth=8, unit_costs=UnitCosts())
+def _pilot_timings(scene, seed: int, **settings):
+    """The pilot passes of a render, timed: (the Renderer, kernel seconds per camera
+    sample (light walk, camera walk, grid build) of each)."""
+    r = Renderer(scene, spp=16, seed=seed, max_depth=8, unit_costs=UnitCosts(), **settings)
     r.timings = {}
     r.render_pass(0)
     r.render_pass(1)
+    return r, [tuple(t / (n * spp) for t in r.timings[i])
+               for i, (_, n, spp) in zip((0, 1), r.plan)]
+
+
+def _calibration_run(scene, seed: int) -> tuple:
+    """One run's unit costs, in UnitCosts' order."""
+    r, ((light0, camera0, _), (light1, camera1, _)) = _pilot_timings(scene, seed)
     c = r.pilot.costs
-    (light0, camera0), (light1, camera1) = (
-        (light / (n * spp), camera / (n * spp))
-        for (light, camera), (_, n, spp) in zip((r.timings[0], r.timings[1]), r.plan))
     camera_ray = camera0 / c.camera_rays
     light_ray = light0 / c.light_rays           # one light subpath per camera sample
     stored = max(light1 - light0, 0.0) / c.stored_per_path
@@ -759,4 +799,15 @@ def _calibration_run(scene, seed: int) -> tuple:
         seconds = sum(e.get("execution_time", 0.0) for e in dr.kernel_history()
                       if e["type"] == dr.KernelType.JIT) / 1000.0
     path_ray = seconds / (r.pixels * 4) / c.camera_rays
-    return camera_ray, light_ray, stored, connection, path_ray
+    return (camera_ray, light_ray, stored, connection, path_ray) + _merge_units(scene, seed, camera1)
+
+
+def _merge_units(scene, seed: int, camera1: float) -> tuple:
+    """(grid_vertex, merge_step): the pilot's BDPT pass again with merging (the same
+    samples), its grid build per stored vertex and the camera walk's extra time per
+    query step (8 per query and one per item visited, optimizer.Costs.merging)."""
+    r, (_, (_, camera, grid)) = _pilot_timings(scene, seed, merging=True)
+    c = r.pilot.costs
+    steps = 8.0 * c.merges + c.merge_items * r.pilot.pilot_eta
+    return (grid / max(c.stored_per_path, 1e-9),
+            max(camera - camera1, 0.0) / max(steps, 1e-9))

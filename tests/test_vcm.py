@@ -204,7 +204,7 @@ def test_settings_and_budgets():
     from bdpt_drjit.budgets import fixed_budget
     s = Settings(merging=True)
     assert s.radius == 0.0 and s.radius_alpha == 0.75
-    assert str(fixed_budget(s)) == "light_paths=1 connections=all"   # auto: Veach's
+    assert fixed_budget(s) is None           # auto: the pilot decides, merging included
     assert str(fixed_budget(Settings(merging=True, light_paths="0.5", connections="2"))) \
         == "light_paths=0.5 connections=2"
     ppm = Settings(strategy_subset="ppm")
