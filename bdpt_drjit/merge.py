@@ -204,7 +204,7 @@ def _merge_one(ctx, pos, active, state, v):
     u = mis.groups_merge(y, s == 2, pdf_w, state.d_vcm, state.d_vc, state.d_end, state.d_vm,
                          state.depth == 1, rev_w, w.eta, w.rate(s - 1), w.rate(state.depth))
     lum = luminance(value * state.beta)
-    return value, lum, u[0] * lum, u[1] * lum, u[2] * lum
+    return value, lum, u[0] * lum, u[1] * lum, u[2] * lum, dr.square(lum)
 
 
 def _sum(a, b):
@@ -253,12 +253,14 @@ def merge_at(ctx, store, state, v, active) -> mi.Spectrum:
     """Every merge at camera vertex z_j (j = state.depth): the weighted sum over the
     light vertices within r, times beta_E / (pi r^2 N_L).  Counts the query and the
     items it visited (``state.merges``, ``state.merge_items``); a moment pass records
-    the sum as one sample, its groups the contributions' luminance-weighted means."""
+    the sum as one sample, its groups the contributions' luminance-weighted means, and
+    the sum of their squares apart (optimizer.MomentSamples.add: the photons' pairs
+    are what more photons do not average away)."""
     grid = ctx.grid
     n = dr.width(v.p)
     zero = dr.zeros(mi.Spectrum, n)
     if ctx.moments is not None:
-        zero = (zero,) + tuple(dr.zeros(mi.Float, n) for _ in range(4))
+        zero = (zero,) + tuple(dr.zeros(mi.Float, n) for _ in range(5))
     total, items = visit(grid, store, v.p, active,
                          lambda pos, near: _merge_one(ctx, pos, near, state, v), zero, True)
     state.merges += dr.select(active, 1, 0)
@@ -267,8 +269,9 @@ def merge_at(ctx, store, state, v, active) -> mi.Spectrum:
         return dr.select(active, finite(state.beta * total * grid.norm), 0.0)
     value = dr.select(active, finite(state.beta * total[0] * grid.norm), 0.0)
     lum = total[1]
-    u = [dr.select(lum > 0, x / lum, 0.0) for x in total[2:]]
-    state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, value, *u, active)
+    u = [dr.select(lum > 0, x / lum, 0.0) for x in total[2:5]]
+    state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, value, *u, active,
+                                 total[5] * dr.square(grid.norm))
     return value
 
 

@@ -119,6 +119,7 @@ class MomentSample:
     u_pt: mi.Float
     u_lt: mi.Float
     u_vm: mi.Float          # merging's share (mis.py's d_vm; 0 without merging)
+    f2_pairs: mi.Float      # a merge query: the pairs' part of F^2 (``MomentSamples.add``)
 
 
 def luminance(value) -> mi.Float:
@@ -155,15 +156,18 @@ class MomentSamples:
 
     NOT_RECORDED = 0xFFFFFFFF
 
-    def add(self, slot, lane, pixel, value, u_pt, u_lt, u_vm, active):
+    def add(self, slot, lane, pixel, value, u_pt, u_lt, u_vm, active, singles=None):
         """Record a camera-side contribution in the lane's next slot; returns the slot
-        count."""
+        count.  ``singles``: a merge query's value is a sum over photons, and this the
+        sum of their squares; the rest of its square is the pairs' (``f2_pairs``)."""
         lum = luminance(value)
         base = dr.gather(mi.UInt32, self.base, lane, active)
         ok = active & (lum != 0) & (slot < self.SLOTS) & (base != self.NOT_RECORDED)
-        dr.scatter(self.items, MomentSample(pixel=mi.UInt32(pixel), f2=mi.Float(dr.square(lum)),
+        f2 = dr.square(lum)
+        single = f2 if singles is None else dr.minimum(singles, f2)
+        dr.scatter(self.items, MomentSample(pixel=mi.UInt32(pixel), f2=mi.Float(single),
                                             u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt),
-                                            u_vm=mi.Float(u_vm)),
+                                            u_vm=mi.Float(u_vm), f2_pairs=mi.Float(f2 - single)),
                    base + slot, ok)
         return slot + dr.select(ok, 1, 0)
 
@@ -180,25 +184,28 @@ class MomentSamples:
         image can sample exactly the paths with u_lt > 0 (at a delta z_1 the t = 1
         term is 0), which tells the two kinds apart without a flag per sample."""
         f64 = dr.float64_array_t(mi.Float)
-        groups = []         # per kind of sample: (relative F^2, u_pt, u_lt, u_vm, pixel)
+        groups = []         # per kind of sample: (relative F^2, u_pt, u_lt, u_vm, pixel,
+                            # relative F^2 of merge pairs)
         kinds = [(self._camera_side(), None, self.every)]
         for items, valid, weight in kinds + ([] if splats is None else [splats]):
             if valid is not None:
                 items = gather(items, dr.compress(valid))  # the recorded samples only
             if dr.width(items.f2) == 0:
                 continue
-            relative = items.f2 / means.squared(items.pixel, dr.sqrt(items.f2))
+            mean2 = means.squared(items.pixel, dr.sqrt(items.f2 + items.f2_pairs))
             weight = dr.opaque(mi.Float, weight)           # no kernel per value
-            groups.append((f64(relative * weight), f64(items.u_pt), f64(items.u_lt),
-                           f64(items.u_vm), items.pixel))
+            groups.append((f64(items.f2 / mean2 * weight), f64(items.u_pt), f64(items.u_lt),
+                           f64(items.u_vm), items.pixel, f64(items.f2_pairs / mean2 * weight)))
         dropped = outliers(groups, dr.width(means.blurred))
         # The candidates' rates in arrays, read by index: as literals, kappa (new with
         # every render) compiled a kernel per decision (0.03-0.05 s).
         merge = rates[:, 3] if rates.shape[1] > 3 else np.zeros(len(rates))   # no merging
         rate, kappa, vm = f64(rates[:, 0]), f64(rates[:, 1]), f64(merge)
         sums = np.zeros(len(rates))
-        for relative, u_pt, u_lt, u_vm, pixel in groups:
-            relative = dr.select(dr.gather(mi.Bool, dropped, pixel), 0.0, relative)
+        for relative, u_pt, u_lt, u_vm, pixel, pairs in groups:
+            out_pixel = dr.gather(mi.Bool, dropped, pixel)
+            relative = dr.select(out_pixel, 0.0, relative)
+            pairs = dr.select(out_pixel, 0.0, pairs)
             u_con = dr.maximum(1.0 - u_pt - u_lt - u_vm, 0.0)
             # Each candidate's sum is scatter-added into its slot, all in one kernel (a
             # reduction per candidate took 200 launches: the decision took 14 ms at
@@ -210,7 +217,9 @@ class MomentSamples:
                 if first_hits:
                     share = dr.select(u_lt > 0, r * u_lt, share)
                 # A share of 0: the candidate cannot sample this path (infinite moment).
-                dr.scatter_reduce(dr.ReduceOp.Add, out, relative / dr.maximum(share, 1e-9), c)
+                share = dr.maximum(share, 1e-9)
+                dr.scatter_reduce(dr.ReduceOp.Add, out, relative / share
+                                  + pairs * dr.square(v / share), c)
             sums += out.numpy()
         return sums
 
@@ -238,8 +247,8 @@ def outliers(groups, pixels: int) -> mi.Bool:
     (the samples' F^2 / mean^2) is an outlier (above)."""
     f64 = dr.float64_array_t(mi.Float)
     per_pixel = dr.zeros(f64, pixels)
-    for relative, *_, pixel in groups:
-        dr.scatter_reduce(dr.ReduceOp.Add, per_pixel, relative, pixel)
+    for relative, _, _, _, pixel, pairs in groups:
+        dr.scatter_reduce(dr.ReduceOp.Add, per_pixel, relative + pairs, pixel)
     moment = per_pixel.numpy()
     n = max(1, pixels // OUTLIER_SHARE)
     largest = np.argpartition(moment, -n)[-n:] if pixels > n else np.arange(pixels)

@@ -212,7 +212,8 @@ def _splat_moments(ctx, store):
     items = gather(s.items, index)
     value = luminance(items.value)
     samples = MomentSample(pixel=ctx.camera.pixel_index(items.pos), f2=dr.square(value),
-                           u_pt=items.u_pt, u_lt=items.u_lt, u_vm=items.u_vm)
+                           u_pt=items.u_pt, u_lt=items.u_lt, u_vm=items.u_vm,
+                           f2_pairs=dr.zeros(mi.Float, dr.width(value)))
     dr.eval(samples)
     return samples, None, stride / r ** 2
 
