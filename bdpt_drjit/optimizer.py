@@ -37,6 +37,22 @@ candidate's moment per camera sample is averaged over the moment passes so far, 
 the means are the whole image's so far.  After path tracing there is nothing to
 re-decide from: its samples give no light subpath's density.
 
+Merging (``vcm``: settings.merging with auto budgets).  Every candidate comes with
+merging off and, where it has light subpaths, on (``merging_candidates``).  The BDPT
+pilot pass then merges too, at its own rate eta_P = pi r^2 N_L, and each contribution
+also reports merging's share u_vm of its balance sum (mis.py's d_vm), so
+P_c / P = u_pt + r_c u_lt + kappa_c u_con + v_c u_vm with v_c = eta_c / eta_P, eta_c
+the candidate's rate in the passes to come (their radii and sizes: Costs.merge_eta).
+A merge query is one sample: the photons' squares are independent samples as above,
+and the rest of the query's square (the pairs, F_agg^2 - sum F_i^2) is the part that
+more photons do not average away, the camera path's own variance: it scales as
+(v_c / share)^2 (with the pairs scaled like single samples, the moments fell as 1 / eta
+and merging looked 10x better than it renders in Veach's room).  Its work is counted:
+the grid's build per stored vertex and the query steps (8 cell loads per query and the
+items visited, which grow with eta).  Where the decision leaves merging off, no later
+pass builds a grid or queries it (render.py), and the decision is global: no per-pixel
+merge mask.
+
 Costs are counted, not timed: the pilot counts per camera sample the rays of the
 camera walk with s <= 1 (the first pass), per light subpath the rays of the light walk
 and its t = 1 splats, the light vertices it stores, and the connections' shadow rays
