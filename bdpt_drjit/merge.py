@@ -194,14 +194,20 @@ def _merge_one(ctx, pos, active, state, v):
     f, pdf_w = v.eval(w_y, active)          # z_j toward y_{i-1}: the light side's reverse
     value = f * beta_l / cos_g
     active &= spectrum_nonzero(value)
-    if ctx.weights.merging:
+    w = ctx.weights
+    if w.merges_evaluated:
         rev_w = v.reverse_pdf(w_y, active)   # toward z_{j-1}: the camera side's reverse
-        value *= ctx.weights.merge(y, state.d_vcm, state.d_vc, state.depth, pdf_w, rev_w)
+        light_d_vc = cam_d_vc = None
+        if ctx.moments is not None:          # (a shadow pass's chains lack merging's part)
+            light_d_vc = w.moment_d_vc(y.d_vc, y.d_vm)
+            cam_d_vc = w.moment_d_vc(state.d_vc, state.d_vm)
+        value *= w.merge(y, state.d_vcm, state.d_vc if cam_d_vc is None else cam_d_vc,
+                         state.depth, pdf_w, rev_w, light_d_vc)
     value = dr.select(active, finite(value), 0.0)
     if ctx.moments is None:
         return value
-    w = ctx.weights
-    u = mis.groups_merge(y, s == 2, pdf_w, state.d_vcm, state.d_vc, state.d_end, state.d_vm,
+    light = mis.Chains(y.d_vcm, light_d_vc, y.d_end, y.d_vm)
+    u = mis.groups_merge(light, s == 2, pdf_w, state.d_vcm, cam_d_vc, state.d_end, state.d_vm,
                          state.depth == 1, rev_w, w.eta, w.rate(s - 1), w.rate(state.depth))
     lum = luminance(value * state.beta)
     return value, lum, u[0] * lum, u[1] * lum, u[2] * lum, dr.square(lum)

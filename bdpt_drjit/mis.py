@@ -362,7 +362,10 @@ class Weights:
     * Lafortune & Willems' weights, which use no densities at all.
     """
 
-    def __init__(self, heuristic: str, strategies):
+    def __init__(self, heuristic: str, strategies, shadow: bool = False):
+        """``shadow``: merges are evaluated for a moment pass's samples only (the vcm
+        pilot, optimizer.py): the image's weights, chains and contributions are those
+        without merging, and ``moment_d_vc`` / ``vm_moment`` give the moments' own."""
         self.h = Heuristic(heuristic)
         self.on = strategies.use_mis
         self.lafortune = self.on and self.h.is_lafortune
@@ -377,7 +380,10 @@ class Weights:
         # Are there strategies beyond s <= 1?  Without them the chains stay 0 and the
         # densities that only feed them (reverse pdfs, emission densities) are not
         # computed: path tracing then costs what Mitsuba's path costs.
-        self.merging = self.on and strategies.merging
+        # merges_evaluated: merge queries run; merging: they are part of the image's MIS.
+        self.merges_evaluated = self.on and strategies.merging
+        self.shadow = shadow and self.merges_evaluated
+        self.merging = self.merges_evaluated and not self.shadow
         self.chains = self.on and (strategies.light_image or strategies.connects or self.merging)
         self.set_rates(1.0, 1.0)
         self.set_merging(0.0)
@@ -399,6 +405,17 @@ class Weights:
         if surface is True:
             return self.eta
         return dr.select(surface, self.eta, 0.0)
+
+    def vm_moment(self, surface=True):
+        """``vm`` of the moments: eta wherever merges are evaluated, in the image or not."""
+        if not self.merges_evaluated:
+            return 0.0
+        return self.eta if surface is True else dr.select(surface, self.eta, 0.0)
+
+    def moment_d_vc(self, d_vc, d_vm):
+        """d_vc as the moments' weights see it: with merging's part d_vm, which the
+        image's chain lacks in a shadow pass (and already holds otherwise)."""
+        return d_vc + d_vm if self.shadow else d_vc
 
     def rate(self, depth):
         """The rate of the strategy that d_vcm stands for at a subpath's vertex of this
@@ -507,14 +524,17 @@ class Weights:
                               self.rate(light.s - 1), self.rate(cam_depth), self.kappa,
                               self.vm(light_surface), self.vm(cam_surface))
 
-    def merge(self, light, cam_d_vcm, cam_d_vc, cam_depth, light_rev_w, cam_rev_w):
+    def merge(self, light, cam_d_vcm, cam_d_vc, cam_depth, light_rev_w, cam_rev_w,
+              light_d_vc=None):
         """Merging stored light vertex ``light`` (y_i, i = s - 1) at camera vertex z_j
-        (j = ``cam_depth``), both surfaces; ``*_rev_w`` as in ``weight_merge``.  Weight 1
-        where merging is the only strategy (``ppm``)."""
-        if not self.merging:
+        (j = ``cam_depth``), both surfaces; ``*_rev_w`` as in ``weight_merge``;
+        ``light_d_vc``: in place of light.d_vc (a shadow pass's ``moment_d_vc``).  Weight
+        1 where merging is the only strategy (``ppm``)."""
+        if not self.merges_evaluated:
             return mi.Float(1.0)
-        return weight_merge(self.h, light.d_vcm, light.d_vc, light_rev_w, cam_d_vcm, cam_d_vc,
-                            cam_rev_w, self.eta, self.rate(light.s - 1), self.rate(cam_depth))
+        return weight_merge(self.h, light.d_vcm, light.d_vc if light_d_vc is None else light_d_vc,
+                            light_rev_w, cam_d_vcm, cam_d_vc, cam_rev_w, self.eta,
+                            self.rate(light.s - 1), self.rate(cam_depth))
 
     def first_light_vertex(self, d_vc0, nee_pdf_a, nee_pdf_w, infinite, emission_pdf_aw,
                            dist2, cos_hit, dens_fwd=1.0, dens_rev=1.0):
@@ -561,6 +581,12 @@ def end_after_scatter(d_end, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta, 
 # (``vm_after_scatter``; ``vm_after_hit`` is d_vc's conversion).  It is 0 at both
 # subpaths' starts (y_0 and z_0 never merge).  A strategy's merging share is then its
 # d_vm terms and its own endpoints' eta terms over its balance total.
+
+class Chains:
+    """A light vertex's chains as the groups read them (``groups_connect``, ``groups_merge``)."""
+    def __init__(self, d_vcm, d_vc, d_end, d_vm):
+        self.d_vcm, self.d_vc, self.d_end, self.d_vm = d_vcm, d_vc, d_end, d_vm
+
 
 def vm_after_hit(d_vm, dist2, cos_hit, dens_fwd=1.0, dens_rev=1.0):
     """d_vm at the vertex just found (d_vc's part of ``after_hit``)."""

@@ -136,6 +136,7 @@ class MomentSample:
     u_lt: mi.Float
     u_vm: mi.Float          # merging's share (mis.py's d_vm; 0 without merging)
     f2_pairs: mi.Float      # a merge query: the pairs' part of F^2 (``MomentSamples.add``)
+    query: mi.Float         # 1 for a merge query's sample, else 0
 
 
 def luminance(value) -> mi.Float:
@@ -155,8 +156,14 @@ class MomentSamples:
 
     SLOTS = 32
 
-    def __init__(self, lanes: int, every: int = 1):
-        self.lanes, self.every = lanes, every
+    def __init__(self, lanes: int, every: int = 1, shadow: bool = False):
+        """``shadow``: the pass's merges are for its moments only (mis.Weights): a
+        contribution of the image then counts as the estimator with merging would
+        have weighted it, value x (1 - u_vm) (the balance heuristic's), and
+        ``correction`` sums per lane what turns the lane's value into that estimator's
+        (-u_vm x value, and the merges): render.py adds it where merging is chosen."""
+        self.lanes, self.every, self.shadow = lanes, every, shadow
+        self.correction = dr.zeros(mi.Spectrum, lanes) if shadow else None
         # Zeroed by a memset, which the pilot's timer does not count: written first by
         # the timed camera walk, the fresh pages' faults were charged to connections,
         # 1.5-9x their cost (Veach's MIS scene 1.6-5.8e-7 s per sample against 0.65e-7;
@@ -177,20 +184,28 @@ class MomentSamples:
         count.  ``singles``: a merge query's value is a sum over photons, and this the
         sum of their squares; the rest of its square is the pairs' (``f2_pairs``)."""
         lum = luminance(value)
+        if self.shadow:
+            change = value if singles is not None else value * -mi.Float(u_vm)
+            dr.scatter_reduce(dr.ReduceOp.Add, self.correction, change, lane, active)
+            if singles is None:
+                lum = lum * (1.0 - u_vm)
         base = dr.gather(mi.UInt32, self.base, lane, active)
         ok = active & (lum != 0) & (slot < self.SLOTS) & (base != self.NOT_RECORDED)
         f2 = dr.square(lum)
         single = f2 if singles is None else dr.minimum(singles, f2)
         dr.scatter(self.items, MomentSample(pixel=mi.UInt32(pixel), f2=mi.Float(single),
                                             u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt),
-                                            u_vm=mi.Float(u_vm), f2_pairs=mi.Float(f2 - single)),
+                                            u_vm=mi.Float(u_vm), f2_pairs=mi.Float(f2 - single),
+                                            query=mi.Float(0.0 if singles is None else 1.0)),
                    base + slot, ok)
         return slot + dr.select(ok, 1, 0)
 
-    def relative_moments(self, rates: np.ndarray, means: "PilotMeans", splats=None) -> np.ndarray:
+    def relative_moments(self, rates: np.ndarray, means: "PilotMeans", splats=None,
+                         merging: bool = False) -> np.ndarray:
         """Per candidate (rows of ``rates``: r, kappa, light_first_hits, merging rate v,
-        each relative to the pass's own rates), the second moment of its balance estimator relative
-        to each pixel's squared mean (``means``), summed over these samples (times
+        each relative to the pass's own rates), the second moment of its balance
+        estimator relative to each pixel's squared mean (``means``), summed over these
+        samples (times
         ``every``) and the pass's splats (a ``MomentSample`` of them, with its
         validity and the weight of each), outlier pixels left out (``outliers``): an
         estimate of the sum over the pass's camera samples.
@@ -198,7 +213,12 @@ class MomentSamples:
         A light_first_hits candidate samples a path whose z_1 is smooth by the light
         image alone, and any other path as its base budget (r, kappa) does.  The light
         image can sample exactly the paths with u_lt > 0 (at a delta z_1 the t = 1
-        term is 0), which tells the two kinds apart without a flag per sample."""
+        term is 0), which tells the two kinds apart without a flag per sample.
+
+        ``merging``: the samples may hold merges (a vcm moment pass): the pairs and, for
+        candidates without merging, the maximum heuristic over the kinds of sample
+        (below); without, the kernel is BDPT's alone.
+        """
         f64 = dr.float64_array_t(mi.Float)
         groups = []         # per kind of sample: (relative F^2, u_pt, u_lt, u_vm, pixel,
                             # relative F^2 of merge pairs)
@@ -211,14 +231,15 @@ class MomentSamples:
             mean2 = means.squared(items.pixel, dr.sqrt(items.f2 + items.f2_pairs))
             weight = dr.opaque(mi.Float, weight)           # no kernel per value
             groups.append((f64(items.f2 / mean2 * weight), f64(items.u_pt), f64(items.u_lt),
-                           f64(items.u_vm), items.pixel, f64(items.f2_pairs / mean2 * weight)))
+                           f64(items.u_vm), items.pixel, f64(items.f2_pairs / mean2 * weight),
+                           f64(items.query)))
         dropped = outliers(groups, dr.width(means.blurred))
         # The candidates' rates in arrays, read by index: as literals, kappa (new with
         # every render) compiled a kernel per decision (0.03-0.05 s).
         merge = rates[:, 3] if rates.shape[1] > 3 else np.zeros(len(rates))   # no merging
         rate, kappa, vm = f64(rates[:, 0]), f64(rates[:, 1]), f64(merge)
         sums = np.zeros(len(rates))
-        for relative, u_pt, u_lt, u_vm, pixel, pairs in groups:
+        for relative, u_pt, u_lt, u_vm, pixel, pairs, query in groups:
             out_pixel = dr.gather(mi.Bool, dropped, pixel)
             relative = dr.select(out_pixel, 0.0, relative)
             pairs = dr.select(out_pixel, 0.0, pairs)
@@ -234,8 +255,21 @@ class MomentSamples:
                     share = dr.select(u_lt > 0, r * u_lt, share)
                 # A share of 0: the candidate cannot sample this path (infinite moment).
                 share = dr.maximum(share, 1e-9)
-                dr.scatter_reduce(dr.ReduceOp.Add, out, relative / share
-                                  + pairs * dr.square(v / share), c)
+                if not merging:         # (no merge samples: BDPT's kernel, as before)
+                    dr.scatter_reduce(dr.ReduceOp.Add, out, relative / share, c)
+                    continue
+                moment = relative / share + pairs * dr.square(v / share)
+                # Without merging: a path's moment from the kind of sample that holds
+                # most of its balance sum (the maximum heuristic over the two kinds):
+                # other samples where u_vm < 1/2, as BDPT's pilot has them (value /
+                # (1 - u_vm), shares over 1 - u_vm), merge queries where u_vm >= 1/2,
+                # over u_vm (a mirror caustic, which BDPT's pilot cannot see).  With
+                # every merge sample in (the balance heuristic), sparse photons' fireflies
+                # made vcm choose worse budgets than bdpt in Veach's room.
+                mine = dr.select(query > 0, u_vm >= MERGE_ONLY, u_vm < MERGE_ONLY)
+                kind = dr.select(query > 0, u_vm, 1.0 - u_vm)
+                bdpt = dr.select(mine, relative / dr.maximum(kind * share, 1e-9), 0.0)
+                dr.scatter_reduce(dr.ReduceOp.Add, out, dr.select(v > 0, moment, bdpt), c)
             sums += out.numpy()
         return sums
 
@@ -244,6 +278,12 @@ class MomentSamples:
         idx = dr.arange(mi.UInt32, dr.width(self.items.f2))
         live = idx % self.SLOTS < dr.gather(mi.UInt32, self.count, idx // self.SLOTS * self._every)
         return gather(self.items, dr.compress(live))
+
+
+# A candidate without merging takes a path's moment from merge samples where merging
+# holds at least this share of the path's balance sum, from the other samples elsewhere
+# (MomentSamples.relative_moments).
+MERGE_ONLY = 0.9
 
 
 # Outlier pixels: a pixel whose pilot moment outweighs all the others together weighs
@@ -263,7 +303,7 @@ def outliers(groups, pixels: int) -> mi.Bool:
     (the samples' F^2 / mean^2) is an outlier (above)."""
     f64 = dr.float64_array_t(mi.Float)
     per_pixel = dr.zeros(f64, pixels)
-    for relative, _, _, _, pixel, pairs in groups:
+    for relative, _, _, _, pixel, pairs, _ in groups:
         dr.scatter_reduce(dr.ReduceOp.Add, per_pixel, relative + pairs, pixel)
     moment = per_pixel.numpy()
     n = max(1, pixels // OUTLIER_SHARE)
@@ -476,12 +516,16 @@ class Pilot:
 
     def budget(self, index: int):
         """(budget, heuristic, with moments) of pilot pass ``index``: light tracing with
-        path tracing (path tracing alone without a light image), then full BDPT."""
+        path tracing (path tracing alone without a light image), then full BDPT.  With
+        merging (vcm) both merge, their images without it (render.py, mis.Weights'
+        shadow): the BDPT pass's merges give the merging candidates' moments, and where
+        merging is chosen both passes' images become the estimator with merging (with
+        the balance heuristic, which gives that estimator's weights from u_vm)."""
+        on = True if self.merging else None
         if index == 0:
-            return (Budget(1.0 if self.light_image else 0.0, 0,
-                           merging=False if self.merging else None), None, False)
-        # vcm: the BDPT pass merges too, which gives the merging candidates' moments.
-        return Budget(1.0, "all", merging=True if self.merging else None), "balance", True
+            return (Budget(1.0 if self.light_image else 0.0, 0, merging=on),
+                    "balance" if self.merging else None, False)
+        return Budget(1.0, "all", merging=on), "balance", True
 
     def record(self, index: int, lanes: int, camera_rays: int, light_subpaths: int,
                light_rays: int, stored: int, first_hit_share: float = 1.0) -> None:
@@ -533,7 +577,8 @@ class Pilot:
                           else 0.0, float(c.light_first_hits), self._merge_rate(c, eta)]
                          for c in cands])
         recorded = samples.lanes / samples.every
-        relative = samples.relative_moments(rows, PilotMeans.of(mean, spp, filled), splats) / samples.lanes
+        relative = samples.relative_moments(rows, PilotMeans.of(mean, spp, filled), splats,
+                                            self.merging) / samples.lanes
         for c, m in zip(cands, relative):
             total, weight = self.moments.get(c, (0.0, 0.0))
             self.moments[c] = (total + m * recorded, weight + recorded)

@@ -211,9 +211,12 @@ def _splat_moments(ctx, store):
             return None
     items = gather(s.items, index)
     value = luminance(items.value)
+    if ctx.moments.shadow:          # weighted as with merging (MomentSamples)
+        value = value * (1.0 - items.u_vm)
     samples = MomentSample(pixel=ctx.camera.pixel_index(items.pos), f2=dr.square(value),
                            u_pt=items.u_pt, u_lt=items.u_lt, u_vm=items.u_vm,
-                           f2_pairs=dr.zeros(mi.Float, dr.width(value)))
+                           f2_pairs=dr.zeros(mi.Float, dr.width(value)),
+                           query=dr.zeros(mi.Float, dr.width(value)))
     dr.eval(samples)
     return samples, None, stride / r ** 2
 
@@ -330,6 +333,7 @@ class Renderer:
                                 self._accepted_count)
         self.pilot, self._stride, self._path_tracer = None, {}, None
         self._moment_passes = set()     # passes after the pilot that re-decide
+        self._pending = []              # vcm pilot passes merged for moments only
         self._pilot_round = 0           # passes of the round the pilot opens (2 or 3)
         if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
             self._plan_pilot(max_lanes)
@@ -477,13 +481,15 @@ class Renderer:
         sampler.seed(_mix_seed(self.seed, index, stream), lanes)
         return sampler
 
-    def _rules(self, budget: Budget, heuristic: str):
-        """The strategies and weights of a budget (one pair per budget, reused)."""
-        if (budget, heuristic) not in self._rules_cache:
+    def _rules(self, budget: Budget, heuristic: str, shadow: bool = False):
+        """The strategies and weights of a budget (one pair per budget, reused);
+        ``shadow``: its merges for the moments only (mis.Weights)."""
+        key = budget, heuristic, shadow
+        if key not in self._rules_cache:
             strategies = StrategySet(self.settings, self.emitters.count > 0, budget,
                                      self.camera.light_image_possible)
-            self._rules_cache[budget, heuristic] = (strategies, Weights(heuristic, strategies))
-        return self._rules_cache[budget, heuristic]
+            self._rules_cache[key] = (strategies, Weights(heuristic, strategies, shadow))
+        return self._rules_cache[key]
 
     def _pass_rules(self, index: int):
         """(budget, heuristic, moment samples or None) of pass ``index``."""
@@ -496,7 +502,11 @@ class Renderer:
 
     def _context(self, index, rays, sampler, lanes: int, spp: int) -> PassContext:
         budget, heuristic, moments = self._pass_rules(index)
-        strategies, weights = self._rules(budget, heuristic)
+        # The vcm pilot merges for its moments only: its image stays BDPT's (unbiased,
+        # and without the fireflies of merging where it does not pay).
+        shadow = self._is_pilot_pass(index) and budget.merging is True
+        strategies, weights = self._rules(budget, heuristic, shadow)
+        moments = moments or weights.shadow       # (pass 0: for its correction alone)
         n_light = budget.light_subpaths(lanes) if strategies.max_light_vertices() != -1 else 0
         # MIS rates of the pass: a vertex cache's kappa from the stored vertices per light
         # subpath of the last pass (the weights need a value before the light walk).
@@ -519,7 +529,8 @@ class Renderer:
             light_count=n_light, pick_offset=dr.opaque(mi.Float, _unit(self.seed, index)),
             noise_key=dr.opaque(mi.UInt32, _mix_seed(self.seed, index, 2) & 0xFFFFFFFF),
             images=images, pixel=rays.pixel,
-            moments=MomentSamples(lanes, every) if moments else None, mis_rates=rates,
+            moments=MomentSamples(lanes, every, weights.shadow) if moments else None,
+            mis_rates=rates,
             merge_radius=radius)
 
     def _render_pass(self, index, pixel_offset, n_pixels, spp, lanes):
@@ -569,7 +580,13 @@ class Renderer:
         if merging:
             self.pilot.record_merging(lanes, int(totals[2][0]), int(totals[3][0]), ctx.mis_rates[2])
         if self._is_pilot_pass(index):
+            if ctx.weights.shadow:
+                self._pending.append((index, rays, ctx, store, lanes, pixel_offset))
             self._pilot_pass(index, ctx, store, cam, camera_rays, light_ray_count, lanes)
+            if index == Pilot.PASSES - 1:
+                for pending in self._pending if self.budget.merges else ():
+                    self._merging_after_all(*pending)
+                self._pending = []
         elif ctx.moments is not None:
             ctx.moments.count = cam.slot
             self.pilot.costs.merge_eta = self.merge_eta(index)
@@ -592,6 +609,24 @@ class Renderer:
                 == dr.opaque(mi.UInt32, pixel_offset % stride))
         self.film.put_splats(splats, ctx.wavelengths, lanes / ctx.light_count * stride, keep,
                              None if ctx.images is None else ctx.images.layer_of)
+
+    def _merging_after_all(self, index, rays, ctx, store, lanes: int, pixel_offset: int):
+        """The vcm pilot's BDPT pass merged for its moments only (its image BDPT's);
+        where the decision keeps merging, its samples become the estimator with
+        merging: each contribution x (1 - u_vm) (balance weights) and the merges added
+        (MomentSamples.correction; the splats' -u_vm x value), with no weight of their
+        own on the film."""
+        wavelengths = rays.ray.wavelengths
+        self.film.camera.put(rays.pos, wavelengths, ctx.moments.correction, 0.0, 0.0)
+        count = 0 if store is None else min(store.splats.size(), store.splats.capacity)
+        if count == 0:
+            return
+        splats = gather(store.splats.items, dr.arange(mi.UInt32, count))
+        splats.value = splats.value * -splats.u_vm
+        stride = self._stride.get(index, 1)
+        keep = (self.camera.grid_index(splats.pos) % dr.opaque(mi.UInt32, stride)
+                == dr.opaque(mi.UInt32, pixel_offset % stride))
+        self.film.put_splats(splats, ctx.wavelengths, lanes / ctx.light_count * stride, keep)
 
     def _put_camera(self, rays, cam, images=None, lanes: int = 0):
         """The camera samples' values on the film.  Alpha as Mitsuba's path: 1 where
@@ -626,7 +661,7 @@ class Renderer:
             kept = dr.sum(dr.select(cam.specular_z1, cam.rays, dr.minimum(cam.rays, 1)))
             share = float(kept[0]) / max(camera_rays, 1)
         self.pilot.record(index, lanes, camera_rays, ctx.light_count, light_rays, stored, share)
-        if ctx.moments is not None:
+        if index == Pilot.PASSES - 1:
             ctx.moments.count = cam.slot
             # Where a third pass completes the round, the light image is normalized by
             # the round's camera samples and the means are the pilot's pixels'.

@@ -46,10 +46,10 @@ def light_vertex_to_camera(ctx, store, v, vertex, sample, active) -> mi.UInt32:
     contrib *= ctx.weights.light_to_camera(vertex.d_vcm, vertex.d_vc, vertex.s - 1, cam_pdf_a, rev_w,
                                            v.surface)
     u_pt, u_lt, u_vm = (0.0, 0.0, 0.0) if ctx.moments is None else _light_image_groups(
-        ctx, mis.groups_light_image(vertex.d_vcm, vertex.d_vc, vertex.d_end, vertex.s == 2,
-                                    cam_pdf_a, rev_w, ctx.weights.light_ratio,
-                                    ctx.weights.rate(vertex.s - 1), vertex.d_vm,
-                                    ctx.weights.vm(v.surface)))
+        ctx, mis.groups_light_image(vertex.d_vcm, ctx.weights.moment_d_vc(vertex.d_vc, vertex.d_vm),
+                                    vertex.d_end, vertex.s == 2, cam_pdf_a, rev_w,
+                                    ctx.weights.light_ratio, ctx.weights.rate(vertex.s - 1),
+                                    vertex.d_vm, ctx.weights.vm_moment(v.surface)))
     store.splats.append(Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=vertex.s,
                               lane=ctx.lane, u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt),
                               u_vm=mi.Float(u_vm)), active)

@@ -239,7 +239,8 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
         if ctx.grid is not None:                # vertex merging (merge.py)
             merged = merge.merge_at(ctx, store, state, v, merge.can_merge(
                 ctx.strategies, v, state.depth, connectible))
-            state.radiance = ctx.strategies.add_merge(ctx.images, state.radiance, ctx.lane, merged)
+            if not ctx.weights.shadow:          # a shadow pass merges for its moments only
+                state.radiance = ctx.strategies.add_merge(ctx.images, state.radiance, ctx.lane, merged)
         goes_on = walking if max_j is None else walking & (state.depth < max_j)
         delta = _scatter(ctx, state, v, u, goes_on, importance=False)
         if ctx.strategies.ppm:                  # merged at its first smooth vertex
@@ -293,7 +294,7 @@ def _camera_vertex_mis(ctx, state: PathState, v, flight):
 # -- shared steps ---------------------------------------------------------------------
 def _vm_shares(ctx) -> bool:
     """A moment pass with merging: its walks carry d_vm (mis.vm_after_scatter)."""
-    return ctx.moments is not None and ctx.weights.merging
+    return ctx.moments is not None and ctx.weights.merges_evaluated
 
 
 def _next_vertex(ctx, state: PathState, sampler):
@@ -347,7 +348,7 @@ def _scatter(ctx, state: PathState, v: Vertex, u: DepthSamples, active, importan
                                             pdf_rev_w, delta, state.depth == 1, importance)
     if state.d_vm is not None:
         state.d_vm = mis.vm_after_scatter(state.d_vm, cos_out, bs.pdf, pdf_rev_w, delta,
-                                          ctx.weights.vm(v.surface))
+                                          ctx.weights.vm_moment(v.surface))
     state.d_vcm, state.d_vc = ctx.weights.after_scatter(state.d_vcm, state.d_vc, cos_out,
                                                         bs.pdf, pdf_rev_w, delta, state.depth,
                                                         v.surface)

@@ -73,7 +73,7 @@ def test_moments_of_a_first_hit_candidate():
     samples = MomentSamples(1)
     samples.items = MomentSample(pixel=mi.UInt32([0, 1]), f2=mi.Float([1.0, 1.0]),
                                  u_pt=mi.Float([0.5, 1.0]), u_lt=mi.Float([0.25, 0.0]),
-                                 u_vm=mi.Float([0.0, 0.0]), f2_pairs=mi.Float([0.0, 0.0]))
+                                 u_vm=mi.Float([0.0, 0.0]), f2_pairs=mi.Float([0.0, 0.0]), query=mi.Float([0.0, 0.0]))
     samples.count = mi.UInt32([2])
     samples.SLOTS = 2
     rates = np.array([[2.0, 0.0, 0.0], [2.0, 0.0, 1.0]])

@@ -129,7 +129,7 @@ def test_a_pixel_that_outweighs_all_others_is_left_out():
     pixel = list(range(n)) + [7]
     samples.items = MomentSample(pixel=mi.UInt32(pixel), f2=mi.Float([1.0] * n + [1e6]),
                                  u_pt=mi.Float([0.2] * n + [1.0]), u_lt=mi.Float([0.8] * n + [0.0]),
-                                 u_vm=mi.Float([0.0] * (n + 1)), f2_pairs=mi.Float([0.0] * (n + 1)))
+                                 u_vm=mi.Float([0.0] * (n + 1)), f2_pairs=mi.Float([0.0] * (n + 1)), query=mi.Float([0.0] * (n + 1)))
     samples.count = mi.UInt32([1] * (n + 1))
     samples.SLOTS = 1
     means = PilotMeans(mi.Float([1.0] * n), mi.Float([0.0] * n), 0.0)
@@ -141,7 +141,7 @@ def test_a_pixel_that_outweighs_all_others_is_left_out():
     ordinary = MomentSamples(n)
     ordinary.items = MomentSample(pixel=mi.UInt32(list(range(n))), f2=mi.Float([1.0] * n),
                                   u_pt=mi.Float([1.0] * n), u_lt=mi.Float([0.0] * n), u_vm=mi.Float([0.0] * n),
-                                  f2_pairs=mi.Float([0.0] * n))
+                                  f2_pairs=mi.Float([0.0] * n), query=mi.Float([0.0] * n))
     ordinary.count, ordinary.SLOTS = mi.UInt32([1] * n), 1
     assert ordinary.relative_moments(rates[:1], means)[0] == pytest.approx(n)
 
@@ -392,7 +392,7 @@ def test_a_later_moment_pass_records_every_nth_lane():
     means = PilotMeans(mi.Float([1.0] * 4), mi.Float([0.0] * 4), 0.0)
     splats = (MomentSample(pixel=mi.UInt32([1]), f2=mi.Float([4.0]), u_pt=mi.Float([0.0]),
                            u_lt=mi.Float([1.0]), u_vm=mi.Float([0.0]),
-                           f2_pairs=mi.Float([0.0])), mi.Bool([True]), 0.25)
+                           f2_pairs=mi.Float([0.0]), query=mi.Float([0.0])), mi.Bool([True]), 0.25)
     rates = np.array([[1.0, 0.0, 0.0]])
     # 2 x (1 + 1) from the camera side (lanes 1 and 3, F = 5, unrecorded), 0.25 x 4
     # from the splat

@@ -233,7 +233,8 @@ def _render_counting_merges(scene, monkeypatch, **kw):
     """A render, and the passes (by index) that built a hash grid and ran merge queries."""
     built, queried = [], []
     build, merge_at = merge.HashGrid.build, merge.merge_at
-    from bdpt_drjit import render as render_module
+    import sys
+    render_module = sys.modules["bdpt_drjit.render"]
     current = {}
     pass_ = render_module.Renderer._render_pass
 
@@ -256,22 +257,26 @@ def _render_counting_merges(scene, monkeypatch, **kw):
     return res, sorted(set(built)), sorted(set(queried))
 
 
+@pytest.mark.auto_budget
 def test_vcm_on_the_diffuse_box_leaves_merging_off_and_pays_for_no_grid(monkeypatch):
     """On the diffuse Cornell box merging buys nothing: ``vcm`` (merging on, budgets
-    auto) prices it in the pilot and leaves it off.  Only the pilot's BDPT pass (pass 1)
-    builds a grid and queries it; the passes after build none and query nothing, and
-    they are as large as bdpt's (no small passes for a radius that does not shrink).
-    Before, vcm fell back to Veach's budget with merging in every pass."""
+    auto) prices it in the pilot and leaves it off.  Only the pilot's passes (0 and 1)
+    build a grid and query it, for the moments alone (their images are BDPT's: the
+    same image as bdpt's where the decisions agree); the passes after build none and
+    query nothing, and they are as large as bdpt's (no small passes for a radius that
+    does not shrink).  Before, vcm fell back to Veach's budget with merging in every
+    pass."""
     scene = mi.load_file(scene_path("cornell-box.xml"), resx=32, resy=32)
     res, built, queried = _render_counting_merges(scene, monkeypatch, spp=64, seed=3,
                                                   max_depth=8, merging=True)
     assert "merging=off" in res.stats["budget"], res.stats["decision"]
-    assert built == [1] and queried == [1], (built, queried)
+    assert built == [0, 1] and queried == [0, 1], (built, queried)
     assert "merges=" in res.stats["cost_counts"]
     plain = bdpt_drjit.render(scene, spp=64, seed=3, max_depth=8)
     assert res.passes == plain.passes
 
 
+@pytest.mark.auto_budget
 def test_sds_scene_keeps_merging():
     """The caustic seen in the mirror is merging's alone: the pilot keeps merging on."""
     scene = mi.load_file(SDS, resx=32, resy=32)
@@ -280,6 +285,7 @@ def test_sds_scene_keeps_merging():
         assert "merging=on" in res.stats["budget"], res.stats["decision"]
 
 
+@pytest.mark.auto_budget
 def test_vcm_decision_is_the_same_for_a_seed(monkeypatch):
     """The merging decision reads no clock: the same seed gives the same budget, counts
     and image with the kernels' timings made random (tests/test_optimizer.py's rule)."""
@@ -325,18 +331,22 @@ def test_merging_candidates_and_their_cost():
 def test_merge_pairs_scale_with_the_merging_rate_squared():
     """A merge query's sample: its photons' squares count as independent samples (F^2 /
     share, as every other), the rest of its square, the pairs, as (v / share)^2: more
-    photons (rate v) do not average away the camera path's own variance."""
+    photons (rate v) do not average away the camera path's own variance.  A candidate
+    without merging reads the other samples alone, as BDPT's pilot would have them
+    (F / (1 - u_vm), shares over 1 - u_vm)."""
     from bdpt_drjit.optimizer import MomentSample, MomentSamples, PilotMeans
-    n = 3                                   # alike, in 3 pixels (none an outlier)
-    samples = MomentSamples(n)
-    samples.items = MomentSample(pixel=mi.UInt32([0, 1, 2]), f2=mi.Float([1.0] * n),
-                                 u_pt=mi.Float([0.2] * n), u_lt=mi.Float([0.0] * n),
-                                 u_vm=mi.Float([0.8] * n), f2_pairs=mi.Float([3.0] * n))
-    samples.count, samples.SLOTS = mi.UInt32([1] * n), 1
+    n = 3                                   # a query and another sample in each of 3 pixels
+    samples = MomentSamples(2 * n)
+    samples.items = MomentSample(pixel=mi.UInt32([0, 1, 2] * 2), f2=mi.Float([1.0] * 2 * n),
+                                 u_pt=mi.Float([0.2] * n + [0.5] * n), u_lt=mi.Float([0.0] * 2 * n),
+                                 u_vm=mi.Float([0.8] * n + [0.5] * n),
+                                 f2_pairs=mi.Float([3.0] * n + [0.0] * n),
+                                 query=mi.Float([1.0] * n + [0.0] * n))
+    samples.count, samples.SLOTS = mi.UInt32([1] * 2 * n), 1
     means = PilotMeans(blurred=mi.Float([2.0] * n), own=mi.Float([0.0] * n), floor=1e-9)
     rates = np.array([[1.0, 1.0, 0.0, 0.0], [1.0, 1.0, 0.0, 1.0], [1.0, 1.0, 0.0, 4.0]])
-    off, same, more = samples.relative_moments(rates, means) / n
-    assert off == pytest.approx(1.0 / 4 / 0.2)                    # the pairs: merging's alone
-    assert same == pytest.approx((1.0 + 3.0) / 4)                 # the pass itself: F^2
-    share = 0.2 + 4 * 0.8
-    assert more == pytest.approx(1.0 / 4 / share + 3.0 / 4 * (4 / share) ** 2)
+    off, same, more = samples.relative_moments(rates, means, merging=True) / n
+    assert off == pytest.approx(1.0 / 4 / (0.5 * 0.5))
+    assert same == pytest.approx((1.0 + 3.0) / 4 + 1.0 / 4)      # the pass itself: F^2
+    q, o = 0.2 + 4 * 0.8, 0.5 + 4 * 0.5
+    assert more == pytest.approx(1.0 / 4 / q + 3.0 / 4 * (4 / q) ** 2 + 1.0 / 4 / o)
