@@ -38,8 +38,11 @@ the means are the whole image's so far.  After path tracing there is nothing to
 re-decide from: its samples give no light subpath's density.
 
 Merging (``vcm``: settings.merging with auto budgets).  Every candidate comes with
-merging off and, where it has light subpaths, on (``merging_candidates``).  The BDPT
-pilot pass then merges too, at its own rate eta_P = pi r^2 N_L, and each contribution
+merging off and, where it has light subpaths, on (``merging_candidates``).  Both pilot
+passes then merge too (the balance heuristic), for their moments only: their images
+are BDPT's (mis.Weights' shadow), and where merging is chosen render.py turns their
+samples into the estimator with merging (each contribution x (1 - u_vm), the merges
+added).  The BDPT pass merges at its own rate eta_P = pi r^2 N_L, and each contribution
 also reports merging's share u_vm of its balance sum (mis.py's d_vm), so
 P_c / P = u_pt + r_c u_lt + kappa_c u_con + v_c u_vm with v_c = eta_c / eta_P, eta_c
 the candidate's rate in the passes to come (their radii and sizes: Costs.merge_eta).
@@ -47,7 +50,10 @@ A merge query is one sample: the photons' squares are independent samples as abo
 and the rest of the query's square (the pairs, F_agg^2 - sum F_i^2) is the part that
 more photons do not average away, the camera path's own variance: it scales as
 (v_c / share)^2 (with the pairs scaled like single samples, the moments fell as 1 / eta
-and merging looked 10x better than it renders in Veach's room).  Its work is counted:
+and merging looked 10x better than it renders in Veach's room).  A candidate without
+merging reads a path's moment from the merges only where merging holds nearly all of
+its balance sum (MERGE_ONLY), else from the other samples as BDPT's pilot would.  Its
+work is counted:
 the grid's build per stored vertex and the query steps (8 cell loads per query and the
 items visited, which grow with eta).  Where the decision leaves merging off, no later
 pass builds a grid or queries it (render.py), and the decision is global: no per-pixel
@@ -156,14 +162,18 @@ class MomentSamples:
 
     SLOTS = 32
 
-    def __init__(self, lanes: int, every: int = 1, shadow: bool = False):
+    def __init__(self, lanes: int, every: int = 1, shadow: bool = False, record: bool = True):
         """``shadow``: the pass's merges are for its moments only (mis.Weights): a
         contribution of the image then counts as the estimator with merging would
         have weighted it, value x (1 - u_vm) (the balance heuristic's), and
         ``correction`` sums per lane what turns the lane's value into that estimator's
-        (-u_vm x value, and the merges): render.py adds it where merging is chosen."""
-        self.lanes, self.every, self.shadow = lanes, every, shadow
+        (-u_vm x value, and the merges): render.py adds it where merging is chosen.
+        ``record``: False for a shadow pass that only needs its correction (the vcm
+        pilot's first pass: no slots, nothing recorded)."""
+        self.lanes, self.every, self.shadow, self.record = lanes, every, shadow, record
         self.correction = dr.zeros(mi.Spectrum, lanes) if shadow else None
+        if not record:
+            return
         # Zeroed by a memset, which the pilot's timer does not count: written first by
         # the timed camera walk, the fresh pages' faults were charged to connections,
         # 1.5-9x their cost (Veach's MIS scene 1.6-5.8e-7 s per sample against 0.65e-7;
@@ -187,6 +197,8 @@ class MomentSamples:
         if self.shadow:
             change = value if singles is not None else value * -mi.Float(u_vm)
             dr.scatter_reduce(dr.ReduceOp.Add, self.correction, change, lane, active)
+            if not self.record:
+                return slot
             if singles is None:
                 lum = lum * (1.0 - u_vm)
         base = dr.gather(mi.UInt32, self.base, lane, active)

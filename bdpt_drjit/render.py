@@ -506,6 +506,7 @@ class Renderer:
         # and without the fireflies of merging where it does not pay).
         shadow = self._is_pilot_pass(index) and budget.merging is True
         strategies, weights = self._rules(budget, heuristic, shadow)
+        record = moments
         moments = moments or weights.shadow       # (pass 0: for its correction alone)
         n_light = budget.light_subpaths(lanes) if strategies.max_light_vertices() != -1 else 0
         # MIS rates of the pass: a vertex cache's kappa from the stored vertices per light
@@ -529,7 +530,7 @@ class Renderer:
             light_count=n_light, pick_offset=dr.opaque(mi.Float, _unit(self.seed, index)),
             noise_key=dr.opaque(mi.UInt32, _mix_seed(self.seed, index, 2) & 0xFFFFFFFF),
             images=images, pixel=rays.pixel,
-            moments=MomentSamples(lanes, every, weights.shadow) if moments else None,
+            moments=MomentSamples(lanes, every, weights.shadow, record) if moments else None,
             mis_rates=rates,
             merge_radius=radius)
 
@@ -708,7 +709,8 @@ class Renderer:
                                      zeroed=self.timings is not None)
             light_rays = trace_light_subpaths(light, store)
             dr.eval(light_rays, store.vertices.items, store.splats.items, store.first,
-                    *([] if ctx.moments is None else [ctx.moments.items, ctx.moments.count]))
+                    *([] if ctx.moments is None or not ctx.moments.record
+                      else [ctx.moments.items, ctx.moments.count]))
             if not store.overflowed():
                 break
             per_path[0] = max(per_path[0], -(-store.vertices.size() * 5 // (4 * n)))
