@@ -843,7 +843,10 @@ def _calibration_run(scene, seed: int) -> tuple:
 def _merge_units(scene, seed: int, camera1: float) -> tuple:
     """(grid_vertex, merge_step): the pilot's BDPT pass again with merging (the same
     samples), its grid build per stored vertex and the camera walk's extra time per
-    query step (8 per query and one per item visited, optimizer.Costs.merging)."""
+    query step (8 per query and one per item visited, optimizer.Costs.merging).
+    Spectral variants do not merge: 0, 0."""
+    if mi.is_spectral:
+        return 0.0, 0.0
     r, (_, (_, camera, grid)) = _pilot_timings(scene, seed, merging=True)
     c = r.pilot.costs
     steps = 8.0 * c.merges + c.merge_items * r.pilot.pilot_eta
