@@ -267,20 +267,9 @@ class MomentSamples:
                     share = dr.select(u_lt > 0, r * u_lt, share)
                 # A share of 0: the candidate cannot sample this path (infinite moment).
                 share = dr.maximum(share, 1e-9)
-                if not merging:         # (no merge samples: BDPT's kernel, as before)
-                    dr.scatter_reduce(dr.ReduceOp.Add, out, relative / share, c)
-                    continue
-                moment = relative / share + pairs * dr.square(v / share)
-                # Without merging: a path's moment from one kind of sample: merge
-                # queries where u_vm >= MERGE_ONLY, over u_vm (a mirror caustic, which
-                # BDPT's pilot cannot see), else the other samples as BDPT's pilot has
-                # them (value / (1 - u_vm), shares over 1 - u_vm).  With every merge
-                # sample in (the balance heuristic), sparse photons' fireflies made vcm
-                # choose worse budgets than bdpt in Veach's room.
-                mine = dr.select(query > 0, u_vm >= MERGE_ONLY, u_vm < MERGE_ONLY)
-                kind = dr.select(query > 0, u_vm, 1.0 - u_vm)
-                bdpt = dr.select(mine, relative / dr.maximum(kind * share, 1e-9), 0.0)
-                dr.scatter_reduce(dr.ReduceOp.Add, out, dr.select(v > 0, moment, bdpt), c)
+                moment = (relative / share if not merging   # (BDPT's kernel, as before)
+                          else _with_merges(relative, pairs, u_vm, query, v, share))
+                dr.scatter_reduce(dr.ReduceOp.Add, out, moment, c)
             sums += out.numpy()
         return sums
 
@@ -289,6 +278,22 @@ class MomentSamples:
         idx = dr.arange(mi.UInt32, dr.width(self.items.f2))
         live = idx % self.SLOTS < dr.gather(mi.UInt32, self.count, idx // self.SLOTS * self._every)
         return gather(self.items, dr.compress(live))
+
+
+def _with_merges(relative, pairs, u_vm, query, v, share):
+    """A sample's relative moment for a candidate of merging rate ``v`` (its balance
+    sum over the pass's: ``share``) in a pass that merges (MomentSamples.add): its
+    single part over the share and a merge query's pairs scaled by (v / share)^2.
+    Without merging (v = 0), a path's moment from one kind of sample: merge queries
+    where u_vm >= MERGE_ONLY, over u_vm (a mirror caustic, which BDPT's pilot cannot
+    see), else the other samples as BDPT's pilot has them (value / (1 - u_vm), shares
+    over 1 - u_vm).  With every merge sample in (the balance heuristic), sparse
+    photons' fireflies made vcm choose worse budgets than bdpt in Veach's room."""
+    moment = relative / share + pairs * dr.square(v / share)
+    mine = dr.select(query > 0, u_vm >= MERGE_ONLY, u_vm < MERGE_ONLY)
+    kind = dr.select(query > 0, u_vm, 1.0 - u_vm)
+    bdpt = dr.select(mine, relative / dr.maximum(kind * share, 1e-9), 0.0)
+    return dr.select(v > 0, moment, bdpt)
 
 
 # A candidate without merging takes a path's moment from merge samples where merging
