@@ -31,6 +31,8 @@ class Budget:
     light_ratio: float = 1.0         # N_L / N_C
     connections: object = "all"      # "all" or a count M >= 0
     light_first_hits: bool = False   # smooth first camera vertices: light image only
+    merging: bool | None = None      # vertex merging: None as the settings say (a fixed
+                                     # budget); True / False: the optimizer's choice
 
     def light_subpaths(self, camera_samples: int) -> int:
         """N_L for a pass of ``camera_samples`` lanes."""
@@ -60,7 +62,13 @@ class Budget:
     def __str__(self) -> str:
         ratio = ("%g" % self.light_ratio) if not math.isnan(self.light_ratio) else "?"
         first = " first_hits=light_image" if self.light_first_hits else ""
-        return "light_paths=%s connections=%s%s" % (ratio, self.connections, first)
+        merging = "" if self.merging is None else " merging=%s" % ("on" if self.merging else "off")
+        return "light_paths=%s connections=%s%s%s" % (ratio, self.connections, first, merging)
+
+    @property
+    def merges(self) -> bool:
+        """Merging is on wherever the budget does not turn it off (and settings ask)."""
+        return self.merging is not False and self.light_ratio > 0
 
 
 BDPT = Budget(1.0, "all")
@@ -77,11 +85,6 @@ def fixed_budget(settings) -> Budget | None:
         return Budget(1.0, 0)
     if settings.strategy_subset == "ppm":      # merging alone: no connections
         return Budget(1.0, 0)
-    if settings.merging and (settings.light_paths == "auto" or settings.connections == "auto"):
-        # The pilot does not price merging yet: Veach's budget, merging added (or the
-        # light_paths / connections the user fixed).
-        return Budget(1.0 if settings.light_paths == "auto" else float(settings.light_paths),
-                      "all" if settings.connections == "auto" else settings.connections)
     if settings.light_paths == "auto" or settings.connections == "auto":
         return None
     return Budget(float(settings.light_paths), settings.connections,

@@ -54,8 +54,10 @@ def emission_hit(ctx, state, v):
     contrib = dr.select(hit, finite(contrib), 0.0)
     if ctx.moments is not None:
         direct_pdf_a = ctx.weights.direct_pdf_a(from_pinhole, nee_pdf_a, pos_pdf_a)
+        d_vm = state.d_vm_or_0
         state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, contrib, *mis.groups_emission_hit(
-            state.d_vcm, state.d_vc, state.d_end, from_pinhole, direct_pdf_a, emission_pdf_aw), hit)
+            state.d_vcm, ctx.weights.moment_d_vc(state.d_vc, d_vm), state.d_end, from_pinhole,
+            direct_pdf_a, emission_pdf_aw, d_vm), hit)
     return contrib
 
 
@@ -83,11 +85,15 @@ def environment_hit(ctx, state, flight):
                                            nee_pdf_w, emission_pdf_aw)
     contrib = dr.select(active, finite(contrib), 0.0)
     if ctx.moments is not None:        # an escape at once has no rival: all path tracing
-        u_pt, u_lt = mis.groups_emission_hit(d_vcm, d_vc, d_end, False,
-                                             nee_pdf_w, emission_pdf_aw)
+        d_vm = state.d_vm_or_0
+        if ctx.media.present and state.d_vm is not None:
+            d_vm = d_vm * flight.dens_rev / flight.dens_fwd
+        u_pt, u_lt, u_vm = mis.groups_emission_hit(d_vcm, ctx.weights.moment_d_vc(d_vc, d_vm),
+                                                   d_end, False, nee_pdf_w, emission_pdf_aw, d_vm)
         first = state.depth == 1
         state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, contrib,
-                                     dr.select(first, 1.0, u_pt), dr.select(first, 0.0, u_lt), active)
+                                     dr.select(first, 1.0, u_pt), dr.select(first, 0.0, u_lt),
+                                     dr.select(first, 0.0, u_vm), active)
     return contrib
 
 
@@ -127,11 +133,12 @@ def next_event(ctx, state, v, sample, active):
                                v.surface)
     contrib = dr.select(active, finite(contrib), 0.0)
     if ctx.moments is not None:
+        d_vm = state.d_vm_or_0
         state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, contrib, *mis.groups_nee(
-            state.d_vcm, state.d_vc, state.d_end, state.depth == 1,
+            state.d_vcm, ctx.weights.moment_d_vc(state.d_vc, d_vm), state.d_end, state.depth == 1,
             dr.select(ds.delta, 0.0, bsdf_pdf_w / nee_pdf_w),
             emission_pdf_aw * cos_cam / (nee_pdf_w * cos_light), bsdf_rev_w,
-            ctx.weights.rate(state.depth)), active)
+            ctx.weights.rate(state.depth), d_vm, ctx.weights.vm_moment(v.surface)), active)
     return contrib, rays
 
 
@@ -233,8 +240,13 @@ def connect_vertices(ctx, light, active, cam, v_c):
     contrib = dr.select(active, finite(contrib), 0.0)
     groups = None
     if ctx.moments is not None:
-        groups = mis.groups_connect(light, light.s == 2, cam.d_vcm, cam.d_vc, cam.d_end,
+        d_vm = cam.d_vm_or_0
+        chains = mis.Chains(light.d_vcm, weights.moment_d_vc(light.d_vc, light.d_vm),
+                            light.d_end, light.d_vm)
+        groups = mis.groups_connect(chains, light.s == 2, cam.d_vcm,
+                                    weights.moment_d_vc(cam.d_vc, d_vm), cam.d_end,
                                     cam.depth == 1, pdf_c_a, rev_c_w, pdf_l_a, rev_l_w,
                                     weights.rate(light.s - 1), weights.rate(cam.depth),
-                                    weights.kappa)
+                                    weights.kappa, d_vm, weights.vm_moment(v_l.surface),
+                                    weights.vm_moment(v_c.surface))
     return contrib, rays, groups

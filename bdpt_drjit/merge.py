@@ -41,9 +41,11 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from . import mis
 from .strategies import StrategySet
 from .surface import finite, spectrum_nonzero
 from .vertices import gather
+from .optimizer import luminance
 
 # The default first radius, in pixel footprints at the scene's centre.  SmallVCM's
 # default, 0.003 x the scene's bounding-sphere radius, is about 1 of them in
@@ -106,6 +108,8 @@ class Photon:
     d_vcm: mi.Float         # MIS chains (mis.py)
     d_vc: mi.Float
     s: mi.UInt32            # i + 1
+    d_end: mi.Float = None  # moment passes: the chain's far end, its merge part (mis.py)
+    d_vm: mi.Float = None
 
 
 @dataclass
@@ -122,9 +126,11 @@ class HashGrid:
     photons: Photon = None      # merge records in bucket order (render passes)
 
     @staticmethod
-    def build(store, radius: float, light_subpaths: int, photons: bool = True) -> "HashGrid":
+    def build(store, radius: float, light_subpaths: int, photons: bool = True,
+              shares: bool = False) -> "HashGrid":
         """The grid of ``store``'s vertices (vertices.LightVertexStore's pool) at radius r;
-        ``photons``: also copy their merge records (``Photon``) in bucket order."""
+        ``photons``: also copy their merge records (``Photon``) in bucket order, with
+        ``shares`` (a moment pass) the chains' ends and merge parts too."""
         items = store.vertices.items
         capacity = store.vertices.capacity
         index = dr.arange(mi.UInt32, capacity)
@@ -153,6 +159,9 @@ class HashGrid:
                                   d_vcm=dr.gather(mi.Float, items.d_vcm, order),
                                   d_vc=dr.gather(mi.Float, items.d_vc, order),
                                   s=dr.gather(mi.UInt32, items.s, order))
+            if shares:
+                grid.photons.d_end = dr.gather(mi.Float, items.d_end, order)
+                grid.photons.d_vm = dr.gather(mi.Float, items.d_vm, order)
         dr.eval(grid.start, grid.points, grid.photons)
         return grid
 
@@ -173,43 +182,59 @@ def _near(grid: HashGrid, pos, cell, p, active):
     return active & own & (dr.squared_norm(y - p) <= grid.radius2)
 
 
-class _Light:
-    """What ``mis.Weights.merge`` reads of a light vertex."""
-    def __init__(self, d_vcm, d_vc, s):
-        self.d_vcm, self.d_vc, self.s = d_vcm, d_vc, s
-
-
 def _merge_one(ctx, pos, active, state, v):
     """The weighted merge contribution of the light vertex at ``pos`` (bucket order) at
-    camera vertex ``v`` (z_j), before beta_E and the normalization."""
+    camera vertex ``v`` (z_j), before beta_E and the normalization; in a moment pass
+    also (luminance of the contribution, its u_pt, u_lt, u_vm times it)."""
     y = gather(ctx.grid.photons, pos, active)
-    w_y, beta_l, d_vcm, d_vc, s = y.w, y.beta, y.d_vcm, y.d_vc, y.s
+    w_y, beta_l, s = y.w, y.beta, y.s
     active &= ctx.strategies.merges(s - 1, state.depth)
     cos_g, ok = v.cosine(w_y)
     active &= ok & (cos_g > 0)
     f, pdf_w = v.eval(w_y, active)          # z_j toward y_{i-1}: the light side's reverse
     value = f * beta_l / cos_g
     active &= spectrum_nonzero(value)
-    if ctx.weights.merging:
+    w = ctx.weights
+    if w.merges_evaluated:
         rev_w = v.reverse_pdf(w_y, active)   # toward z_{j-1}: the camera side's reverse
-        value *= ctx.weights.merge(_Light(d_vcm, d_vc, s), state.d_vcm, state.d_vc,
-                                   state.depth, pdf_w, rev_w)
-    return dr.select(active, finite(value), 0.0)
+        light_d_vc = cam_d_vc = None
+        if ctx.moments is not None:          # (a shadow pass's chains lack merging's part)
+            light_d_vc = w.moment_d_vc(y.d_vc, y.d_vm)
+            cam_d_vc = w.moment_d_vc(state.d_vc, state.d_vm)
+        value *= w.merge(y, state.d_vcm, state.d_vc if cam_d_vc is None else cam_d_vc,
+                         state.depth, pdf_w, rev_w, light_d_vc)
+    value = dr.select(active, finite(value), 0.0)
+    if ctx.moments is None:
+        return value
+    light = mis.Chains(y.d_vcm, light_d_vc, y.d_end, y.d_vm)
+    u = mis.groups_merge(light, s == 2, pdf_w, state.d_vcm, cam_d_vc, state.d_end, state.d_vm,
+                         state.depth == 1, rev_w, w.eta, w.rate(s - 1), w.rate(state.depth))
+    lum = luminance(value * state.beta)
+    return value, lum, u[0] * lum, u[1] * lum, u[2] * lum, dr.square(lum)
 
 
-def visit(grid: HashGrid, store, p, active, value, zero):
+def _sum(a, b):
+    """a + b, element by element for tuples (a sum of several values)."""
+    if isinstance(a, tuple):
+        return tuple(_sum(x, y) for x, y in zip(a, b))
+    return type(a)(a + b)
+
+
+def visit(grid: HashGrid, store, p, active, value, zero, count: bool = False):
     """The sum over stored light vertices within r of ``p`` of ``value(pos, near)``
     (``pos``: the vertex's place in bucket order, ``grid.order[pos]`` its pool item)
     (0 where not ``near``): one symbolic loop over the 8 cells a sphere of radius r can
-    touch and the items of their buckets, one item (or one cell change) per iteration."""
+    touch and the items of their buckets, one item (or one cell change) per iteration.
+    ``count``: also return the items each query visited (the merge's counted work)."""
     scaled = p * grid.inv_cell
     cell = mi.Vector3i(dr.floor(scaled))
     away = mi.Vector3i(dr.select(scaled - dr.floor(scaled) < 0.5, -1, 1))
 
-    def body(k, pos, end, visiting, total):
+    def body(k, pos, end, visiting, total, items):
         inside = pos < end
         near = _near(grid, pos, visiting, p, inside)
-        total = type(zero)(total + value(pos, near))
+        total = _sum(total, value(pos, near))
+        items = items + dr.select(inside, 1, 0)
         pos = dr.select(inside, pos + 1, pos)
         k = dr.select(inside, k, k + 1)
         load = ~inside & (k < 8)
@@ -219,25 +244,41 @@ def visit(grid: HashGrid, store, p, active, value, zero):
         pos = dr.select(load, first, pos)
         end = dr.select(load, first + dr.gather(mi.UInt32, grid.count, bucket, load), end)
         visiting = dr.select(load, nxt, visiting)
-        return k, pos, end, visiting, total
+        return k, pos, end, visiting, total, items
 
     n = dr.width(p)
-    _, _, _, _, total = dr.while_loop(
+    _, _, _, _, total, items = dr.while_loop(
         (dr.select(active, mi.Int32(-1), mi.Int32(8)), dr.zeros(mi.UInt32, n),
-         dr.zeros(mi.UInt32, n), mi.Vector3i(cell), type(zero)(zero)),
-        lambda k, pos, end, visiting, total: k < 8, body,
-        labels=("k", "pos", "end", "visiting", "total"), label="merges")
-    return total
+         dr.zeros(mi.UInt32, n), mi.Vector3i(cell), zero, dr.zeros(mi.UInt32, n)),
+        lambda k, pos, end, visiting, total, items: k < 8, body,
+        labels=("k", "pos", "end", "visiting", "total", "items"), label="merges")
+    return (total, items) if count else total
 
 
 def merge_at(ctx, store, state, v, active) -> mi.Spectrum:
     """Every merge at camera vertex z_j (j = state.depth): the weighted sum over the
-    light vertices within r, times beta_E / (pi r^2 N_L)."""
+    light vertices within r, times beta_E / (pi r^2 N_L).  Counts the query and the
+    items it visited (``state.merges``, ``state.merge_items``); a moment pass records
+    the sum as one sample, its groups the contributions' luminance-weighted means, and
+    the sum of their squares apart (optimizer.MomentSamples.add: the photons' pairs
+    are what more photons do not average away)."""
     grid = ctx.grid
-    total = visit(grid, store, v.p, active,
-                  lambda pos, near: _merge_one(ctx, pos, near, state, v),
-                  dr.zeros(mi.Spectrum, dr.width(v.p)))
-    return dr.select(active, finite(state.beta * total * grid.norm), 0.0)
+    n = dr.width(v.p)
+    zero = dr.zeros(mi.Spectrum, n)
+    if ctx.moments is not None:
+        zero = (zero,) + tuple(dr.zeros(mi.Float, n) for _ in range(5))
+    total, items = visit(grid, store, v.p, active,
+                         lambda pos, near: _merge_one(ctx, pos, near, state, v), zero, True)
+    state.merges += dr.select(active, 1, 0)
+    state.merge_items += items
+    if ctx.moments is None:
+        return dr.select(active, finite(state.beta * total * grid.norm), 0.0)
+    value = dr.select(active, finite(state.beta * total[0] * grid.norm), 0.0)
+    lum = total[1]
+    u = [dr.select(lum > 0, x / lum, 0.0) for x in total[2:5]]
+    state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, value, *u, active,
+                                 total[5] * dr.square(grid.norm))
+    return value
 
 
 def can_merge(strategies: StrategySet, v, depth, connectible):

@@ -362,7 +362,10 @@ class Weights:
     * Lafortune & Willems' weights, which use no densities at all.
     """
 
-    def __init__(self, heuristic: str, strategies):
+    def __init__(self, heuristic: str, strategies, shadow: bool = False):
+        """``shadow``: merges are evaluated for a moment pass's samples only (the vcm
+        pilot, optimizer.py): the image's weights, chains and contributions are those
+        without merging, and ``moment_d_vc`` / ``vm_moment`` give the moments' own."""
         self.h = Heuristic(heuristic)
         self.on = strategies.use_mis
         self.lafortune = self.on and self.h.is_lafortune
@@ -377,7 +380,10 @@ class Weights:
         # Are there strategies beyond s <= 1?  Without them the chains stay 0 and the
         # densities that only feed them (reverse pdfs, emission densities) are not
         # computed: path tracing then costs what Mitsuba's path costs.
-        self.merging = self.on and strategies.merging
+        # merges_evaluated: merge queries run; merging: they are part of the image's MIS.
+        self.merges_evaluated = self.on and strategies.merging
+        self.shadow = shadow and self.merges_evaluated
+        self.merging = self.merges_evaluated and not self.shadow
         self.chains = self.on and (strategies.light_image or strategies.connects or self.merging)
         self.set_rates(1.0, 1.0)
         self.set_merging(0.0)
@@ -399,6 +405,17 @@ class Weights:
         if surface is True:
             return self.eta
         return dr.select(surface, self.eta, 0.0)
+
+    def vm_moment(self, surface=True):
+        """``vm`` of the moments: eta wherever merges are evaluated, in the image or not."""
+        if not self.merges_evaluated:
+            return 0.0
+        return self.eta if surface is True else dr.select(surface, self.eta, 0.0)
+
+    def moment_d_vc(self, d_vc, d_vm):
+        """d_vc as the moments' weights see it: with merging's part d_vm, which the
+        image's chain lacks in a shadow pass (and already holds otherwise)."""
+        return d_vc + d_vm if self.shadow else d_vc
 
     def rate(self, depth):
         """The rate of the strategy that d_vcm stands for at a subpath's vertex of this
@@ -507,14 +524,17 @@ class Weights:
                               self.rate(light.s - 1), self.rate(cam_depth), self.kappa,
                               self.vm(light_surface), self.vm(cam_surface))
 
-    def merge(self, light, cam_d_vcm, cam_d_vc, cam_depth, light_rev_w, cam_rev_w):
+    def merge(self, light, cam_d_vcm, cam_d_vc, cam_depth, light_rev_w, cam_rev_w,
+              light_d_vc=None):
         """Merging stored light vertex ``light`` (y_i, i = s - 1) at camera vertex z_j
-        (j = ``cam_depth``), both surfaces; ``*_rev_w`` as in ``weight_merge``.  Weight 1
-        where merging is the only strategy (``ppm``)."""
-        if not self.merging:
+        (j = ``cam_depth``), both surfaces; ``*_rev_w`` as in ``weight_merge``;
+        ``light_d_vc``: in place of light.d_vc (a shadow pass's ``moment_d_vc``).  Weight
+        1 where merging is the only strategy (``ppm``)."""
+        if not self.merges_evaluated:
             return mi.Float(1.0)
-        return weight_merge(self.h, light.d_vcm, light.d_vc, light_rev_w, cam_d_vcm, cam_d_vc,
-                            cam_rev_w, self.eta, self.rate(light.s - 1), self.rate(cam_depth))
+        return weight_merge(self.h, light.d_vcm, light.d_vc if light_d_vc is None else light_d_vc,
+                            light_rev_w, cam_d_vcm, cam_d_vc, cam_rev_w, self.eta,
+                            self.rate(light.s - 1), self.rate(cam_depth))
 
     def first_light_vertex(self, d_vc0, nee_pdf_a, nee_pdf_w, infinite, emission_pdf_aw,
                            dist2, cos_hit, dens_fwd=1.0, dens_rev=1.0):
@@ -555,40 +575,84 @@ def end_after_scatter(d_end, d_vcm, d_vc, cos_out, pdf_fwd_w, pdf_rev_w, delta, 
     return dr.select(delta, delta_prev, _div(cos_out, pdf_fwd_w) * prev)
 
 
-def _shares(pt, lt, total):
-    return _div(pt, total), _div(lt, total)
+# Merging's share (u_vm): the eta terms of a chain are its merges, so a third scalar
+# per subpath, d_vm, carries the part of d_vc that eta put there (d_vc is affine in eta
+# under the balance heuristic): it follows d_vc's recursion without the d_vcm term
+# (``vm_after_scatter``; ``vm_after_hit`` is d_vc's conversion).  It is 0 at both
+# subpaths' starts (y_0 and z_0 never merge).  A strategy's merging share is then its
+# d_vm terms and its own endpoints' eta terms over its balance total.
+
+class Chains:
+    """A light vertex's chains as the groups read them (``groups_connect``, ``groups_merge``)."""
+    def __init__(self, d_vcm, d_vc, d_end, d_vm):
+        self.d_vcm, self.d_vc, self.d_end, self.d_vm = d_vcm, d_vc, d_end, d_vm
 
 
-def groups_emission_hit(d_vcm, d_vc, d_end, from_pinhole, direct_pdf, emission_pdf):
+def vm_after_hit(d_vm, dist2, cos_hit, dens_fwd=1.0, dens_rev=1.0):
+    """d_vm at the vertex just found (d_vc's part of ``after_hit``)."""
+    return d_vm * dens_rev * _div(1.0, cos_hit * dens_fwd)
+
+
+def vm_after_scatter(d_vm, cos_out, pdf_fwd_w, pdf_rev_w, delta, m_vm):
+    """d_vm after scattering (``after_scatter``'s d_vc with d_vcm's term left out);
+    ``m_vm``: eta where this vertex could merge."""
+    return dr.select(delta, d_vm * cos_out, _div(cos_out, pdf_fwd_w) * (d_vm * pdf_rev_w + m_vm))
+
+
+def _shares(pt, lt, vm, total):
+    return _div(pt, total), _div(lt, total), _div(vm, total)
+
+
+def groups_emission_hit(d_vcm, d_vc, d_end, from_pinhole, direct_pdf, emission_pdf, d_vm=0.0):
     """s = 0; from the pinhole the only rival is (1,1), a light-image strategy."""
     rival = direct_pdf * d_vcm
     total = 1.0 + rival + emission_pdf * d_vc
     return _shares(dr.select(from_pinhole, 1.0, 1.0 + rival),
-                   dr.select(from_pinhole, rival, emission_pdf * d_end), total)
+                   dr.select(from_pinhole, rival, emission_pdf * d_end),
+                   dr.select(from_pinhole, 0.0, emission_pdf * d_vm), total)
 
 
-def groups_nee(d_vcm, d_vc, d_end, first, w_light, camera_ratio, bsdf_rev_w, m_vcm=1.0):
-    total = w_light + 1.0 + camera_ratio * (m_vcm * d_vcm + d_vc * bsdf_rev_w)
+def groups_nee(d_vcm, d_vc, d_end, first, w_light, camera_ratio, bsdf_rev_w, m_vcm=1.0,
+               d_vm=0.0, m_vm=0.0):
+    total = w_light + 1.0 + camera_ratio * (m_vcm * d_vcm + d_vc * bsdf_rev_w + m_vm)
     lt = camera_ratio * dr.select(first, d_end, d_end * bsdf_rev_w)
-    return _shares(w_light + 1.0, lt, total)
+    return _shares(w_light + 1.0, lt, camera_ratio * (d_vm * bsdf_rev_w + m_vm), total)
 
 
 def groups_light_image(d_vcm, d_vc, d_end, first, cam_pdf_a, bsdf_rev_w, light_ratio=1.0,
-                       m_vcm=1.0):
+                       m_vcm=1.0, d_vm=0.0, m_vm=0.0):
     """``cam_pdf_a`` unscaled: the light image's rate divides it, as in its weight."""
     cam_pdf_a = cam_pdf_a / light_ratio
     chain = m_vcm * d_vcm + d_vc * bsdf_rev_w
     pt = cam_pdf_a * dr.select(first, chain, d_end * bsdf_rev_w)
-    return _shares(pt, 1.0, 1.0 + cam_pdf_a * chain)
+    return _shares(pt, 1.0, cam_pdf_a * (d_vm * bsdf_rev_w + m_vm),
+                   1.0 + cam_pdf_a * (chain + m_vm))
 
 
 def groups_connect(light, light_first, cam_d_vcm, cam_d_vc, cam_d_end, cam_first,
                    cam_bsdf_pdf_a, cam_bsdf_rev_w, light_bsdf_pdf_a, light_bsdf_rev_w,
-                   m_light_vcm=1.0, m_cam_vcm=1.0, kappa=1.0):
+                   m_light_vcm=1.0, m_cam_vcm=1.0, kappa=1.0, cam_d_vm=0.0,
+                   m_light_vm=0.0, m_cam_vm=0.0):
     """Relative to the connection's own density kappa p (``weight_connect``)."""
     light_chain = m_light_vcm * light.d_vcm + light.d_vc * light_bsdf_rev_w
-    total = kappa + (cam_bsdf_pdf_a * light_chain
-                     + light_bsdf_pdf_a * (m_cam_vcm * cam_d_vcm + cam_d_vc * cam_bsdf_rev_w))
+    cam_chain = m_cam_vcm * cam_d_vcm + cam_d_vc * cam_bsdf_rev_w
+    total = kappa + (cam_bsdf_pdf_a * (light_chain + m_light_vm)
+                     + light_bsdf_pdf_a * (cam_chain + m_cam_vm))
     pt = cam_bsdf_pdf_a * dr.select(light_first, light_chain, light.d_end * light_bsdf_rev_w)
     lt = light_bsdf_pdf_a * dr.select(cam_first, cam_d_end, cam_d_end * cam_bsdf_rev_w)
-    return _shares(pt, lt, total)
+    vm = (cam_bsdf_pdf_a * (light.d_vm * light_bsdf_rev_w + m_light_vm)
+          + light_bsdf_pdf_a * (cam_d_vm * cam_bsdf_rev_w + m_cam_vm))
+    return _shares(pt, lt, vm, total)
+
+
+def groups_merge(light, light_first, light_rev_w, cam_d_vcm, cam_d_vc, cam_d_end, cam_d_vm,
+                 cam_first, cam_rev_w, eta, m_light_vcm=1.0, m_cam_vcm=1.0):
+    """Relative to the merge's own density eta p (``weight_merge``): its rivals are the
+    chains on both sides over eta, their far ends path tracing (light side) and the
+    light image (camera side) as in ``groups_connect``, and their d_vm terms merges."""
+    light_chain = m_light_vcm * light.d_vcm + light.d_vc * light_rev_w
+    cam_chain = m_cam_vcm * cam_d_vcm + cam_d_vc * cam_rev_w
+    total = eta + light_chain + cam_chain
+    pt = dr.select(light_first, light_chain, light.d_end * light_rev_w)
+    lt = dr.select(cam_first, cam_d_end, cam_d_end * cam_rev_w)
+    return _shares(pt, lt, eta + light.d_vm * light_rev_w + cam_d_vm * cam_rev_w, total)

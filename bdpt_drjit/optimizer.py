@@ -37,6 +37,28 @@ candidate's moment per camera sample is averaged over the moment passes so far, 
 the means are the whole image's so far.  After path tracing there is nothing to
 re-decide from: its samples give no light subpath's density.
 
+Merging (``vcm``: settings.merging with auto budgets).  Every candidate comes with
+merging off and, where it has light subpaths, on (``merging_candidates``).  Both pilot
+passes then merge too (the balance heuristic), for their moments only: their images
+are BDPT's (mis.Weights' shadow), and where merging is chosen render.py turns their
+samples into the estimator with merging (each contribution x (1 - u_vm), the merges
+added).  The BDPT pass merges at its own rate eta_P = pi r^2 N_L, and each contribution
+also reports merging's share u_vm of its balance sum (mis.py's d_vm), so
+P_c / P = u_pt + r_c u_lt + kappa_c u_con + v_c u_vm with v_c = eta_c / eta_P, eta_c
+the candidate's rate in the passes to come (their radii and sizes: Costs.merge_eta).
+A merge query is one sample: the photons' squares are independent samples as above,
+and the rest of the query's square (the pairs, F_agg^2 - sum F_i^2) is the part that
+more photons do not average away, the camera path's own variance: it scales as
+(v_c / share)^2 (with the pairs scaled like single samples, the moments fell as 1 / eta
+and merging looked 10x better than it renders in Veach's room).  A candidate without
+merging reads a path's moment from the merges only where merging holds nearly all of
+its balance sum (MERGE_ONLY), else from the other samples as BDPT's pilot would.  Its
+work is counted:
+the grid's build per stored vertex and the query steps (8 cell loads per query and the
+items visited, which grow with eta).  Where the decision leaves merging off, no later
+pass builds a grid or queries it (render.py), and the decision is global: no per-pixel
+merge mask.
+
 Costs are counted, not timed: the pilot counts per camera sample the rays of the
 camera walk with s <= 1 (the first pass), per light subpath the rays of the light walk
 and its t = 1 splats, the light vertices it stores, and the connections' shadow rays
@@ -50,7 +72,7 @@ cache (a first render priced compilation) and the integrator's construction.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import drjit as dr
 import mitsuba as mi
@@ -75,7 +97,7 @@ def _pilot_lanes() -> int:
     return PILOT_LANES["cuda" if mi.variant().startswith("cuda") else "llvm"]
 
 
-def candidates(spectral: bool, light_image: bool = True) -> list[Budget]:
+def candidates(spectral: bool, light_image: bool = True, merging: bool = False) -> list[Budget]:
     """Path tracing; per light-subpath ratio, light tracing with path tracing, with
     all connections or with a vertex cache; and light tracing of smooth first hits
     (budgets.Budget.light_first_hits; it needs a light image) at the largest ratio and
@@ -95,7 +117,20 @@ def candidates(spectral: bool, light_image: bool = True) -> list[Budget]:
         # Light subpaths then serve connections alone: a budget with light subpaths and
         # no connections would be path tracing that pays for light walks.
         out = [b for b in out if b.light_ratio == 0 or b.connects]
+    if merging:
+        return merging_candidates(out)
     return out
+
+
+def merging_candidates(budgets: list[Budget]) -> list[Budget]:
+    """Where merging may be on (``vcm``): each budget without merging, and each one
+    with light subpaths (not light_first_hits, which leaves smooth first hits to the
+    light image) with merging added: merging is one more rate of the MIS (mis.py), a
+    candidate like the others, priced by its counted work (``Costs.of``)."""
+    off = [replace(b, merging=False) for b in budgets]
+    on = [replace(b, merging=True) for b in budgets
+          if b.light_ratio > 0 and not b.light_first_hits]
+    return off + on
 
 
 @dataclass
@@ -105,6 +140,9 @@ class MomentSample:
     f2: mi.Float
     u_pt: mi.Float
     u_lt: mi.Float
+    u_vm: mi.Float          # merging's share (mis.py's d_vm; 0 without merging)
+    f2_pairs: mi.Float      # a merge query: the pairs' part of F^2 (``MomentSamples.add``)
+    query: mi.Float         # 1 for a merge query's sample, else 0
 
 
 def luminance(value) -> mi.Float:
@@ -124,8 +162,18 @@ class MomentSamples:
 
     SLOTS = 32
 
-    def __init__(self, lanes: int, every: int = 1):
-        self.lanes, self.every = lanes, every
+    def __init__(self, lanes: int, every: int = 1, shadow: bool = False, record: bool = True):
+        """``shadow``: the pass's merges are for its moments only (mis.Weights): a
+        contribution of the image then counts as the estimator with merging would
+        have weighted it, value x (1 - u_vm) (the balance heuristic's), and
+        ``correction`` sums per lane what turns the lane's value into that estimator's
+        (-u_vm x value, and the merges): render.py adds it where merging is chosen.
+        ``record``: False for a shadow pass that only needs its correction (the vcm
+        pilot's first pass: no slots, nothing recorded)."""
+        self.lanes, self.every, self.shadow, self.record = lanes, every, shadow, record
+        self.correction = dr.zeros(mi.Spectrum, lanes) if shadow else None
+        if not record:
+            return
         # Zeroed by a memset, which the pilot's timer does not count: written first by
         # the timed camera walk, the fresh pages' faults were charged to connections,
         # 1.5-9x their cost (Veach's MIS scene 1.6-5.8e-7 s per sample against 0.65e-7;
@@ -141,21 +189,35 @@ class MomentSamples:
 
     NOT_RECORDED = 0xFFFFFFFF
 
-    def add(self, slot, lane, pixel, value, u_pt, u_lt, active):
+    def add(self, slot, lane, pixel, value, u_pt, u_lt, u_vm, active, singles=None):
         """Record a camera-side contribution in the lane's next slot; returns the slot
-        count."""
+        count.  ``singles``: a merge query's value is a sum over photons, and this the
+        sum of their squares; the rest of its square is the pairs' (``f2_pairs``)."""
         lum = luminance(value)
+        if self.shadow:
+            change = value if singles is not None else value * -mi.Float(u_vm)
+            dr.scatter_reduce(dr.ReduceOp.Add, self.correction, change, lane, active)
+            if not self.record:
+                return slot
+            if singles is None:
+                lum = lum * (1.0 - u_vm)
         base = dr.gather(mi.UInt32, self.base, lane, active)
         ok = active & (lum != 0) & (slot < self.SLOTS) & (base != self.NOT_RECORDED)
-        dr.scatter(self.items, MomentSample(pixel=mi.UInt32(pixel), f2=mi.Float(dr.square(lum)),
-                                            u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt)),
+        f2 = dr.square(lum)
+        single = f2 if singles is None else dr.minimum(singles, f2)
+        dr.scatter(self.items, MomentSample(pixel=mi.UInt32(pixel), f2=mi.Float(single),
+                                            u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt),
+                                            u_vm=mi.Float(u_vm), f2_pairs=mi.Float(f2 - single),
+                                            query=mi.Float(0.0 if singles is None else 1.0)),
                    base + slot, ok)
         return slot + dr.select(ok, 1, 0)
 
-    def relative_moments(self, rates: np.ndarray, means: "PilotMeans", splats=None) -> np.ndarray:
-        """Per candidate (rows of ``rates``: r, kappa, light_first_hits, each relative
-        to the pass's own rates), the second moment of its balance estimator relative
-        to each pixel's squared mean (``means``), summed over these samples (times
+    def relative_moments(self, rates: np.ndarray, means: "PilotMeans", splats=None,
+                         merging: bool = False) -> np.ndarray:
+        """Per candidate (rows of ``rates``: r, kappa, light_first_hits, merging rate v,
+        each relative to the pass's own rates), the second moment of its balance
+        estimator relative to each pixel's squared mean (``means``), summed over these
+        samples (times
         ``every``) and the pass's splats (a ``MomentSample`` of them, with its
         validity and the weight of each), outlier pixels left out (``outliers``): an
         estimate of the sum over the pass's camera samples.
@@ -163,37 +225,51 @@ class MomentSamples:
         A light_first_hits candidate samples a path whose z_1 is smooth by the light
         image alone, and any other path as its base budget (r, kappa) does.  The light
         image can sample exactly the paths with u_lt > 0 (at a delta z_1 the t = 1
-        term is 0), which tells the two kinds apart without a flag per sample."""
+        term is 0), which tells the two kinds apart without a flag per sample.
+
+        ``merging``: the samples may hold merges (a vcm moment pass): the pairs and, for
+        candidates without merging, the maximum heuristic over the kinds of sample
+        (below); without, the kernel is BDPT's alone.
+        """
         f64 = dr.float64_array_t(mi.Float)
-        groups = []                 # per kind of sample: (relative F^2, u_pt, u_lt, pixel)
+        groups = []         # per kind of sample: (relative F^2, u_pt, u_lt, u_vm, pixel,
+                            # relative F^2 of merge pairs)
         kinds = [(self._camera_side(), None, self.every)]
         for items, valid, weight in kinds + ([] if splats is None else [splats]):
             if valid is not None:
                 items = gather(items, dr.compress(valid))  # the recorded samples only
             if dr.width(items.f2) == 0:
                 continue
-            relative = items.f2 / means.squared(items.pixel, dr.sqrt(items.f2))
+            mean2 = means.squared(items.pixel, dr.sqrt(items.f2 + items.f2_pairs))
             weight = dr.opaque(mi.Float, weight)           # no kernel per value
-            groups.append((f64(relative * weight), f64(items.u_pt), f64(items.u_lt), items.pixel))
+            groups.append((f64(items.f2 / mean2 * weight), f64(items.u_pt), f64(items.u_lt),
+                           f64(items.u_vm), items.pixel, f64(items.f2_pairs / mean2 * weight),
+                           f64(items.query)))
         dropped = outliers(groups, dr.width(means.blurred))
         # The candidates' rates in arrays, read by index: as literals, kappa (new with
         # every render) compiled a kernel per decision (0.03-0.05 s).
-        rate, kappa = f64(rates[:, 0]), f64(rates[:, 1])
+        merge = rates[:, 3] if rates.shape[1] > 3 else np.zeros(len(rates))   # no merging
+        rate, kappa, vm = f64(rates[:, 0]), f64(rates[:, 1]), f64(merge)
         sums = np.zeros(len(rates))
-        for relative, u_pt, u_lt, pixel in groups:
-            relative = dr.select(dr.gather(mi.Bool, dropped, pixel), 0.0, relative)
-            u_con = dr.maximum(1.0 - u_pt - u_lt, 0.0)
+        for relative, u_pt, u_lt, u_vm, pixel, pairs, query in groups:
+            out_pixel = dr.gather(mi.Bool, dropped, pixel)
+            relative = dr.select(out_pixel, 0.0, relative)
+            pairs = dr.select(out_pixel, 0.0, pairs)
+            u_con = dr.maximum(1.0 - u_pt - u_lt - u_vm, 0.0)
             # Each candidate's sum is scatter-added into its slot, all in one kernel (a
             # reduction per candidate took 200 launches: the decision took 14 ms at
             # 256x256, now 8).
             out = dr.zeros(f64, len(rates))
             for c, first_hits in enumerate(rates[:, 2].tolist()):
-                r, k = dr.gather(f64, rate, c), dr.gather(f64, kappa, c)
-                share = u_pt + r * u_lt + k * u_con
+                r, k, v = (dr.gather(f64, a, c) for a in (rate, kappa, vm))
+                share = u_pt + r * u_lt + k * u_con + v * u_vm
                 if first_hits:
                     share = dr.select(u_lt > 0, r * u_lt, share)
                 # A share of 0: the candidate cannot sample this path (infinite moment).
-                dr.scatter_reduce(dr.ReduceOp.Add, out, relative / dr.maximum(share, 1e-9), c)
+                share = dr.maximum(share, 1e-9)
+                moment = (relative / share if not merging   # (BDPT's kernel, as before)
+                          else _with_merges(relative, pairs, u_vm, query, v, share))
+                dr.scatter_reduce(dr.ReduceOp.Add, out, moment, c)
             sums += out.numpy()
         return sums
 
@@ -202,6 +278,33 @@ class MomentSamples:
         idx = dr.arange(mi.UInt32, dr.width(self.items.f2))
         live = idx % self.SLOTS < dr.gather(mi.UInt32, self.count, idx // self.SLOTS * self._every)
         return gather(self.items, dr.compress(live))
+
+
+def _with_merges(relative, pairs, u_vm, query, v, share):
+    """A sample's relative moment for a candidate of merging rate ``v`` (its balance
+    sum over the pass's: ``share``) in a pass that merges (MomentSamples.add): its
+    single part over the share and a merge query's pairs scaled by (v / share)^2.
+    Without merging (v = 0), a path's moment from one kind of sample: merge queries
+    where u_vm >= MERGE_ONLY, over u_vm (a mirror caustic, which BDPT's pilot cannot
+    see), else the other samples as BDPT's pilot has them (value / (1 - u_vm), shares
+    over 1 - u_vm).  With every merge sample in (the balance heuristic), sparse
+    photons' fireflies made vcm choose worse budgets than bdpt in Veach's room."""
+    moment = relative / share + pairs * dr.square(v / share)
+    mine = dr.select(query > 0, u_vm >= MERGE_ONLY, u_vm < MERGE_ONLY)
+    kind = dr.select(query > 0, u_vm, 1.0 - u_vm)
+    bdpt = dr.select(mine, relative / dr.maximum(kind * share, 1e-9), 0.0)
+    return dr.select(v > 0, moment, bdpt)
+
+
+# A candidate without merging takes a path's moment from merge samples where merging
+# holds at least this share of the path's balance sum (at the pilot's eta), from the
+# other samples elsewhere (MomentSamples.relative_moments): a path BDPT's techniques
+# all but cannot sample (the SDS scene's mirror caustic) is seen through its merges.
+# Measured, not derived: at 0.9 the merges of Veach's room's diffuse paths (merging
+# holds 90-99.9% of their sums at the pilot's large eta) decided for the candidates
+# without merging, and vcm chose worse budgets than bdpt in 4 of 8 seeds (1 at 0.999);
+# at 0.9999 the SDS scene left merging off (4 seeds of 4).
+MERGE_ONLY = 0.999
 
 
 # Outlier pixels: a pixel whose pilot moment outweighs all the others together weighs
@@ -221,8 +324,8 @@ def outliers(groups, pixels: int) -> mi.Bool:
     (the samples' F^2 / mean^2) is an outlier (above)."""
     f64 = dr.float64_array_t(mi.Float)
     per_pixel = dr.zeros(f64, pixels)
-    for relative, _, _, pixel in groups:
-        dr.scatter_reduce(dr.ReduceOp.Add, per_pixel, relative, pixel)
+    for relative, _, _, _, pixel, pairs, _ in groups:
+        dr.scatter_reduce(dr.ReduceOp.Add, per_pixel, relative + pairs, pixel)
     moment = per_pixel.numpy()
     n = max(1, pixels // OUTLIER_SHARE)
     largest = np.argpartition(moment, -n)[-n:] if pixels > n else np.arange(pixels)
@@ -307,6 +410,11 @@ class Costs:
                                       # light_first_hits budget traces (z_1's ray, and
                                       # all of a lane whose z_1 is delta)
     path_tracer: bool = False         # path tracing runs as Mitsuba's path (render.py)
+    merges: float = 0.0               # per camera sample: merge queries (merge.visit)
+    merge_items: float = 0.0          # per camera sample and unit of eta: grid items
+                                      # they visited (their number grows with eta)
+    merge_eta: float = 0.0            # eta = pi r^2 N_L per light subpath per camera
+                                      # sample, over the passes to come (render.py)
 
     def of(self, b: Budget) -> float:
         u = self.units
@@ -314,19 +422,33 @@ class Costs:
             return self.camera_rays * (u.path_ray if self.path_tracer else u.camera_ray)
         share = self.first_hit_share if b.light_first_hits else 1.0
         cost = self.camera_rays * u.camera_ray * share + b.light_ratio * self.light_rays * u.light_ray
-        if b.connects:
+        if b.connects or b.merging:
             cost += b.light_ratio * self.stored_per_path * u.stored_vertex
+        if b.connects:
             full = self.connection_rays * u.connection
             cost += full if b.connections == "all" else full * min(
                 1.0, b.connections / max(self.stored_per_path, 1e-3))
+        if b.merging:
+            cost += self.merging(b.light_ratio)
         return cost
+
+    def merging(self, light_ratio: float) -> float:
+        """Merging's cost per camera sample: the grid's build per stored vertex, and
+        the queries' steps (a query loads 8 cells, each an iteration, and visits the
+        items of their buckets, as many as the photons within reach: their count per
+        query grows with eta, the light subpaths times the disc)."""
+        u = self.units
+        steps = 8.0 * self.merges + self.merge_items * light_ratio * self.merge_eta
+        return light_ratio * self.stored_per_path * u.grid_vertex + steps * u.merge_step
 
     def describe(self) -> str:
         """The counts (the units: UnitCosts.describe)."""
         return ("camera_rays=%.4g light_rays=%.4g stored_per_path=%.4g connection_rays=%.4g "
-                "first_hit_share=%.4g path_tracer=%d"
+                "first_hit_share=%.4g path_tracer=%d%s"
                 % (self.camera_rays, self.light_rays, self.stored_per_path,
-                   self.connection_rays, self.first_hit_share, self.path_tracer))
+                   self.connection_rays, self.first_hit_share, self.path_tracer,
+                   "" if not self.merges else " merges=%.4g merge_items=%.4g merge_eta=%.4g"
+                   % (self.merges, self.merge_items, self.merge_eta)))
 
 
 def covers(current: Budget, candidate: Budget) -> bool:
@@ -337,6 +459,8 @@ def covers(current: Budget, candidate: Budget) -> bool:
     if candidate.light_ratio > 0 and current.light_ratio <= 0:
         return False
     if candidate.connects and not current.connects:
+        return False
+    if candidate.merging and not current.merging:
         return False
     return candidate.light_first_hits or not current.light_first_hits
 
@@ -399,22 +523,30 @@ class Pilot:
         return 4 if spp == 1 and pixels // 4 >= _pilot_lanes() else 2
 
     def __init__(self, spectral: bool, light_image: bool = True,
-                 units: UnitCosts | None = None):
-        self.candidates = candidates(spectral, light_image)
+                 units: UnitCosts | None = None, merging: bool = False):
+        self.candidates = candidates(spectral, light_image, merging)
         self.light_image = light_image
+        self.merging = merging          # vcm: merging is a candidate
         self.costs = Costs(units or UnitCosts())
         self.decision: Decision | None = None     # the latest
         self.first: Decision | None = None        # the pilot's
         self.rounds: list = []                    # (spp, budget) of each re-decision
+        self.pilot_eta = 0.0                      # the BDPT pilot pass's merging rate
         self.moments: dict = {}                   # candidate: (sum of estimates x
                                                   # recorded samples, recorded samples)
 
     def budget(self, index: int):
         """(budget, heuristic, with moments) of pilot pass ``index``: light tracing with
-        path tracing (path tracing alone without a light image), then full BDPT."""
+        path tracing (path tracing alone without a light image), then full BDPT.  With
+        merging (vcm) both merge, their images without it (render.py, mis.Weights'
+        shadow): the BDPT pass's merges give the merging candidates' moments, and where
+        merging is chosen both passes' images become the estimator with merging (with
+        the balance heuristic, which gives that estimator's weights from u_vm)."""
+        on = True if self.merging else None
         if index == 0:
-            return Budget(1.0 if self.light_image else 0.0, 0), None, False
-        return Budget(1.0, "all"), "balance", True
+            return (Budget(1.0 if self.light_image else 0.0, 0, merging=on),
+                    "balance" if self.merging else None, False)
+        return Budget(1.0, "all", merging=on), "balance", True
 
     def record(self, index: int, lanes: int, camera_rays: int, light_subpaths: int,
                light_rays: int, stored: int, first_hit_share: float = 1.0) -> None:
@@ -430,13 +562,18 @@ class Pilot:
         self.costs.connection_rays = max(per_sample - self.costs.camera_rays, 0.0)
         self.costs.stored_per_path = stored / max(light_subpaths, 1)
 
+    def record_merging(self, lanes: int, merges: int, items: int, eta: float) -> None:
+        """The merge work the BDPT pilot pass counted at its merging rate ``eta``."""
+        self.costs.merges = merges / max(lanes, 1)
+        self.costs.merge_items = items / max(lanes, 1) / max(eta, 1e-30)
+
     def decide(self, samples: MomentSamples, splats, mean: np.ndarray, spp: int,
                filled: np.ndarray | None = None) -> Decision:
         """The budget for the rest of the render, from the BDPT pilot's samples and the
         image of both pilot passes (its luminance, (H, W), after ``spp`` camera samples
         per pixel of those in ``filled``, all by default)."""
-        self.decision = self._decide(self.candidates, samples, splats, mean, spp, (1.0, 1.0),
-                                     filled)
+        self.decision = self._decide(self.candidates, samples, splats, mean, spp,
+                                     (1.0, 1.0, self.pilot_eta), filled)
         self.first = self.decision
         return self.decision
 
@@ -446,7 +583,8 @@ class Pilot:
         rendered ``budget`` with the balance heuristic at MIS ``rates`` (N_L / N_C,
         kappa): among the candidates whose balance sums that pass's samples give
         (``covers``), with each candidate's moment averaged over every moment pass so
-        far.  The image's means are the whole render's so far (``spp`` per pixel)."""
+        far.  The image's means are the whole render's so far (``spp`` per pixel);
+        ``rates`` ends with the pass's merging rate eta (0 without merging)."""
         cands = [c for c in self.candidates if covers(budget, c)]
         self.decision = self._decide(cands, samples, splats, mean, spp, rates)
         self.rounds.append((spp, self.decision.budget))
@@ -455,13 +593,22 @@ class Pilot:
     def _decide(self, cands, samples, splats, mean, spp, rates, filled=None) -> Decision:
         """Per candidate, the relative moment summed over pixels per camera sample of
         this pass, averaged with earlier passes' by their recorded camera samples."""
-        r, k = rates
+        r, k, eta = rates
         rows = np.array([[c.light_ratio / r, c.kappa(1, self.costs.stored_per_path) / k if k
-                          else 0.0, float(c.light_first_hits)] for c in cands])
+                          else 0.0, float(c.light_first_hits), self._merge_rate(c, eta)]
+                         for c in cands])
         recorded = samples.lanes / samples.every
-        relative = samples.relative_moments(rows, PilotMeans.of(mean, spp, filled), splats) / samples.lanes
+        relative = samples.relative_moments(rows, PilotMeans.of(mean, spp, filled), splats,
+                                            self.merging) / samples.lanes
         for c, m in zip(cands, relative):
             total, weight = self.moments.get(c, (0.0, 0.0))
             self.moments[c] = (total + m * recorded, weight + recorded)
         return decide(cands, np.array([self.moments[c][0] / self.moments[c][1]
                                        for c in cands]), self.costs)
+
+    def _merge_rate(self, c: Budget, eta: float) -> float:
+        """Candidate c's merging rate over the moment pass's: its eta in the passes to
+        come (Costs.merge_eta per light subpath per camera sample) over ``eta``."""
+        if not c.merging or eta <= 0:
+            return 0.0
+        return c.light_ratio * self.costs.merge_eta / eta

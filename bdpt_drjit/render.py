@@ -81,7 +81,7 @@ class PassContext:
     stored: mi.UInt32 = None           # V, the stored light vertices of the pass
     pixel: mi.UInt32 = None            # each camera lane's crop pixel (moments)
     moments: MomentSamples | None = None   # a moment pass's contributions (optimizer.py)
-    mis_rates: tuple = (1.0, 1.0)      # N_L / N_C and kappa of the MIS weights
+    mis_rates: tuple = (1.0, 1.0, 0.0)  # N_L / N_C, kappa and eta of the MIS weights
     grid: merge.HashGrid | None = None  # merging: the pass's light vertices (merge.py)
     merge_radius: float = 0.0          # merging: this pass's radius r_i
 
@@ -211,8 +211,12 @@ def _splat_moments(ctx, store):
             return None
     items = gather(s.items, index)
     value = luminance(items.value)
+    if ctx.moments.shadow:          # weighted as with merging (MomentSamples)
+        value = value * (1.0 - items.u_vm)
     samples = MomentSample(pixel=ctx.camera.pixel_index(items.pos), f2=dr.square(value),
-                           u_pt=items.u_pt, u_lt=items.u_lt)
+                           u_pt=items.u_pt, u_lt=items.u_lt, u_vm=items.u_vm,
+                           f2_pairs=dr.zeros(mi.Float, dr.width(value)),
+                           query=dr.zeros(mi.Float, dr.width(value)))
     dr.eval(samples)
     return samples, None, stride / r ** 2
 
@@ -323,6 +327,7 @@ class Renderer:
                       + _SPLATS_PER_LANE * SPLAT_BYTES + len(layers) * 16)
         self.memory_budget = self.settings.memory_budget or backend.default_memory_budget()
         max_lanes = min(max(1024, self.memory_budget // lane_bytes), 2 ** 31)
+        self._max_lanes = max_lanes     # without merging (_replan)
         if self.settings.merging and not self.settings.samples_per_pass:
             # The radius shrinks per pass (merge.py): passes of a few samples per pixel.
             max_lanes = min(max_lanes, max(merge.PASS_LANES, self.pixels))
@@ -330,6 +335,7 @@ class Renderer:
                                 self._accepted_count)
         self.pilot, self._stride, self._path_tracer = None, {}, None
         self._moment_passes = set()     # passes after the pilot that re-decide
+        self._pending = []              # vcm pilot passes merged for moments only
         self._pilot_round = 0           # passes of the round the pilot opens (2 or 3)
         if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
             self._plan_pilot(max_lanes)
@@ -350,7 +356,8 @@ class Renderer:
         the round gives the odd ones their sample with the budget chosen."""
         self.pilot = Pilot(mi.is_spectral,
                            self.camera.light_image_possible and self.settings.light_image,
-                           self._unit_costs or units.load() or calibrate())
+                           self._unit_costs or units.load() or calibrate(),
+                           merging=self.settings.merging)
         if self.settings.first_hits != "auto":
             light = self.settings.first_hits == "light_image"
             self.pilot.candidates = [b for b in self.pilot.candidates
@@ -372,6 +379,26 @@ class Renderer:
         self.plan = pilot_round + plan_passes(
             self.spp - spp, self.pixels, max_lanes, self.settings.samples_per_pass,
             self._accepted_count)
+
+    def _replan(self) -> None:
+        """Where the pilot of a render with merging chose no merging: the passes after
+        its round as large as the memory budget allows (small passes serve only a
+        shrinking radius; each pass costs a fixed time)."""
+        if (not self.settings.merging or self.settings.samples_per_pass or self.budget.merges
+                or not self.redecide):
+            return
+        head = self.plan[:self._pilot_round]
+        done = sum(n * spp for _, n, spp in head) // self.pixels
+        self.plan = head + plan_passes(self.spp - done, self.pixels, self._max_lanes, 0,
+                                       self._accepted_count)
+
+    def merge_eta(self, after: int) -> float:
+        """Merging's rate per light subpath per camera sample over the passes after
+        ``after``: the mean of pi r_i^2 N_C,i (merge.pass_radius), which a budget's
+        light_ratio scales to its eta (optimizer.Costs.merge_eta)."""
+        etas = [math.pi * merge.pass_radius(self.merge_radius, self.settings.radius_alpha, i) ** 2
+                * n * spp for i, (_, n, spp) in enumerate(self.plan) if i > after]
+        return float(np.mean(etas)) if etas else 0.0
 
     def _plan_rounds(self) -> None:
         """Re-decisions (optimizer.Pilot.redecide): the first pass of the plan that
@@ -471,13 +498,15 @@ class Renderer:
         sampler.seed(_mix_seed(self.seed, index, stream), lanes)
         return sampler
 
-    def _rules(self, budget: Budget, heuristic: str):
-        """The strategies and weights of a budget (one pair per budget, reused)."""
-        if (budget, heuristic) not in self._rules_cache:
+    def _rules(self, budget: Budget, heuristic: str, shadow: bool = False):
+        """The strategies and weights of a budget (one pair per budget, reused);
+        ``shadow``: its merges for the moments only (mis.Weights)."""
+        key = budget, heuristic, shadow
+        if key not in self._rules_cache:
             strategies = StrategySet(self.settings, self.emitters.count > 0, budget,
                                      self.camera.light_image_possible)
-            self._rules_cache[budget, heuristic] = (strategies, Weights(heuristic, strategies))
-        return self._rules_cache[budget, heuristic]
+            self._rules_cache[key] = (strategies, Weights(heuristic, strategies, shadow))
+        return self._rules_cache[key]
 
     def _pass_rules(self, index: int):
         """(budget, heuristic, moment samples or None) of pass ``index``."""
@@ -490,16 +519,23 @@ class Renderer:
 
     def _context(self, index, rays, sampler, lanes: int, spp: int) -> PassContext:
         budget, heuristic, moments = self._pass_rules(index)
-        strategies, weights = self._rules(budget, heuristic)
+        # The vcm pilot merges for its moments only: its image stays BDPT's (unbiased,
+        # and without the fireflies of merging where it does not pay).
+        shadow = self._is_pilot_pass(index) and budget.merging is True
+        strategies, weights = self._rules(budget, heuristic, shadow)
+        record = moments
+        moments = moments or weights.shadow       # (pass 0: for its correction alone)
         n_light = budget.light_subpaths(lanes) if strategies.max_light_vertices() != -1 else 0
         # MIS rates of the pass: a vertex cache's kappa from the stored vertices per light
         # subpath of the last pass (the weights need a value before the light walk).
         rates = (n_light / lanes, budget.kappa(n_light, n_light * self._vertices_per_path))
         weights.set_rates(*rates)
-        radius = 0.0
+        radius, eta = 0.0, 0.0
         if strategies.merging and n_light > 0:      # merging at rate pi r_i^2 N_L (mis.py)
             radius = merge.pass_radius(self.merge_radius, self.settings.radius_alpha, index)
-            weights.set_merging(math.pi * radius * radius * n_light)
+            eta = math.pi * radius * radius * n_light
+            weights.set_merging(eta)
+        rates += (eta,)
         every = 1 if index < Pilot.PASSES else 2 * spp    # a later moment pass: see above
         images = StrategyImages(self.strategies, lanes) if self.strategy_images else None
         return PassContext(
@@ -511,7 +547,8 @@ class Renderer:
             light_count=n_light, pick_offset=dr.opaque(mi.Float, _unit(self.seed, index)),
             noise_key=dr.opaque(mi.UInt32, _mix_seed(self.seed, index, 2) & 0xFFFFFFFF),
             images=images, pixel=rays.pixel,
-            moments=MomentSamples(lanes, every) if moments else None, mis_rates=rates,
+            moments=MomentSamples(lanes, every, weights.shadow, record) if moments else None,
+            mis_rates=rates,
             merge_radius=radius)
 
     def _render_pass(self, index, pixel_offset, n_pixels, spp, lanes):
@@ -531,9 +568,11 @@ class Renderer:
 
         # Stage 2: light subpaths: stored light vertices and t = 1 splats.
         store, light_rays = self._light_subpaths(ctx, index, spp)
-        if ctx.merge_radius > 0 and store is not None:
-            ctx.grid = merge.HashGrid.build(store, ctx.merge_radius, ctx.light_count)
         light_seconds = timer.lap()
+        if ctx.merge_radius > 0 and store is not None:
+            ctx.grid = merge.HashGrid.build(store, ctx.merge_radius, ctx.light_count,
+                                            shares=ctx.moments is not None)
+        grid_seconds = timer.lap()
 
         # Stage 3: camera subpaths, with every strategy t >= 2.
         cam = trace_camera_subpaths(ctx, rays, store)
@@ -548,15 +587,27 @@ class Renderer:
             self._put_splats(index, store, ctx, lanes, pixel_offset)
         self.film.camera_samples += lanes
         totals = (dr.sum(cam.rays), dr.sum(light_rays))
+        merging = self._is_pilot_pass(index) and cam.merges is not None
+        if merging:                                     # merge work, counted (optimizer.Costs)
+            totals += (dr.sum(cam.merges), dr.sum(cam.merge_items))
         dr.eval(*totals)                                # one launch, read in one sync
-        camera_rays, light_ray_count = (int(n[0]) for n in totals)
+        camera_rays, light_ray_count = (int(n[0]) for n in totals[:2])
         self.rays += camera_rays + light_ray_count
         if timer.on:
-            self.timings[index] = (light_seconds, camera_seconds)
+            self.timings[index] = (light_seconds, camera_seconds, grid_seconds)
+        if merging:
+            self.pilot.record_merging(lanes, int(totals[2][0]), int(totals[3][0]), ctx.mis_rates[2])
         if self._is_pilot_pass(index):
+            if ctx.weights.shadow:
+                self._pending.append((index, rays, ctx, store, lanes, pixel_offset))
             self._pilot_pass(index, ctx, store, cam, camera_rays, light_ray_count, lanes)
+            if index == Pilot.PASSES - 1:
+                for pending in self._pending if self.budget.merges else ():
+                    self._merging_after_all(*pending)
+                self._pending = []
         elif ctx.moments is not None:
             ctx.moments.count = cam.slot
+            self.pilot.costs.merge_eta = self.merge_eta(index)
             self.budget = self.pilot.redecide(
                 ctx.moments, _splat_moments(ctx, store), self._luminance(),
                 self.spp_done + n_pixels * spp / self.pixels, ctx.budget, ctx.mis_rates).budget
@@ -576,6 +627,24 @@ class Renderer:
                 == dr.opaque(mi.UInt32, pixel_offset % stride))
         self.film.put_splats(splats, ctx.wavelengths, lanes / ctx.light_count * stride, keep,
                              None if ctx.images is None else ctx.images.layer_of)
+
+    def _merging_after_all(self, index, rays, ctx, store, lanes: int, pixel_offset: int):
+        """The vcm pilot's BDPT pass merged for its moments only (its image BDPT's);
+        where the decision keeps merging, its samples become the estimator with
+        merging: each contribution x (1 - u_vm) (balance weights) and the merges added
+        (MomentSamples.correction; the splats' -u_vm x value), with no weight of their
+        own on the film."""
+        wavelengths = rays.ray.wavelengths
+        self.film.camera.put(rays.pos, wavelengths, ctx.moments.correction, 0.0, 0.0)
+        count = 0 if store is None else min(store.splats.size(), store.splats.capacity)
+        if count == 0:
+            return
+        splats = gather(store.splats.items, dr.arange(mi.UInt32, count))
+        splats.value = splats.value * -splats.u_vm
+        stride = self._stride.get(index, 1)
+        keep = (self.camera.grid_index(splats.pos) % dr.opaque(mi.UInt32, stride)
+                == dr.opaque(mi.UInt32, pixel_offset % stride))
+        self.film.put_splats(splats, ctx.wavelengths, lanes / ctx.light_count * stride, keep)
 
     def _put_camera(self, rays, cam, images=None, lanes: int = 0):
         """The camera samples' values on the film.  Alpha as Mitsuba's path: 1 where
@@ -610,7 +679,7 @@ class Renderer:
             kept = dr.sum(dr.select(cam.specular_z1, cam.rays, dr.minimum(cam.rays, 1)))
             share = float(kept[0]) / max(camera_rays, 1)
         self.pilot.record(index, lanes, camera_rays, ctx.light_count, light_rays, stored, share)
-        if ctx.moments is not None:
+        if index == Pilot.PASSES - 1:
             ctx.moments.count = cam.slot
             # Where a third pass completes the round, the light image is normalized by
             # the round's camera samples and the means are the pilot's pixels'.
@@ -618,8 +687,11 @@ class Renderer:
             mean = self._luminance(sum(n * spp for _, n, spp in self.plan[:self._pilot_round])
                                    if third else None)
             filled = self._pilot_pixels(mean.shape) if third else None
+            self.pilot.pilot_eta = ctx.mis_rates[2]
+            self.pilot.costs.merge_eta = self.merge_eta(self._pilot_round - 1)
             self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean,
                                              self.plan[index][2], filled).budget
+            self._replan()
             self._plan_rounds()
             self._plan_path_tracing()
 
@@ -655,7 +727,8 @@ class Renderer:
                                      zeroed=self.timings is not None)
             light_rays = trace_light_subpaths(light, store)
             dr.eval(light_rays, store.vertices.items, store.splats.items, store.first,
-                    *([] if ctx.moments is None else [ctx.moments.items, ctx.moments.count]))
+                    *([] if ctx.moments is None or not ctx.moments.record
+                      else [ctx.moments.items, ctx.moments.count]))
             if not store.overflowed():
                 break
             per_path[0] = max(per_path[0], -(-store.vertices.size() * 5 // (4 * n)))
@@ -755,16 +828,21 @@ def calibrate(repeats: int = 5) -> UnitCosts:
     return measured
 
 
-def _calibration_run(scene, seed: int) -> tuple:
-    """One run's unit costs, in UnitCosts' order."""
-    r = Renderer(scene, spp=16, seed=seed, max_depth=8, unit_costs=UnitCosts())
+def _pilot_timings(scene, seed: int, **settings):
+    """The pilot passes of a render, timed: (the Renderer, kernel seconds per camera
+    sample (light walk, camera walk, grid build) of each)."""
+    r = Renderer(scene, spp=16, seed=seed, max_depth=8, unit_costs=UnitCosts(), **settings)
     r.timings = {}
     r.render_pass(0)
     r.render_pass(1)
+    return r, [tuple(t / (n * spp) for t in r.timings[i])
+               for i, (_, n, spp) in zip((0, 1), r.plan)]
+
+
+def _calibration_run(scene, seed: int) -> tuple:
+    """One run's unit costs, in UnitCosts' order."""
+    r, ((light0, camera0, _), (light1, camera1, _)) = _pilot_timings(scene, seed)
     c = r.pilot.costs
-    (light0, camera0), (light1, camera1) = (
-        (light / (n * spp), camera / (n * spp))
-        for (light, camera), (_, n, spp) in zip((r.timings[0], r.timings[1]), r.plan))
     camera_ray = camera0 / c.camera_rays
     light_ray = light0 / c.light_rays           # one light subpath per camera sample
     stored = max(light1 - light0, 0.0) / c.stored_per_path
@@ -777,4 +855,18 @@ def _calibration_run(scene, seed: int) -> tuple:
         seconds = sum(e.get("execution_time", 0.0) for e in dr.kernel_history()
                       if e["type"] == dr.KernelType.JIT) / 1000.0
     path_ray = seconds / (r.pixels * 4) / c.camera_rays
-    return camera_ray, light_ray, stored, connection, path_ray
+    return (camera_ray, light_ray, stored, connection, path_ray) + _merge_units(scene, seed, camera1)
+
+
+def _merge_units(scene, seed: int, camera1: float) -> tuple:
+    """(grid_vertex, merge_step): the pilot's BDPT pass again with merging (the same
+    samples), its grid build per stored vertex and the camera walk's extra time per
+    query step (8 per query and one per item visited, optimizer.Costs.merging).
+    Spectral variants do not merge: 0, 0."""
+    if mi.is_spectral:
+        return 0.0, 0.0
+    r, (_, (_, camera, grid)) = _pilot_timings(scene, seed, merging=True)
+    c = r.pilot.costs
+    steps = 8.0 * c.merges + c.merge_items * r.pilot.pilot_eta
+    return (grid / max(c.stored_per_path, 1e-9),
+            max(camera - camera1, 0.0) / max(steps, 1e-9))

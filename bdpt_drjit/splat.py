@@ -45,12 +45,14 @@ def light_vertex_to_camera(ctx, store, v, vertex, sample, active) -> mi.UInt32:
     cam_pdf_a = cam.importance * cos_out * dens_rev
     contrib *= ctx.weights.light_to_camera(vertex.d_vcm, vertex.d_vc, vertex.s - 1, cam_pdf_a, rev_w,
                                            v.surface)
-    u_pt, u_lt = (0.0, 0.0) if ctx.moments is None else _light_image_groups(
-        ctx, mis.groups_light_image(vertex.d_vcm, vertex.d_vc, vertex.d_end, vertex.s == 2,
-                                    cam_pdf_a, rev_w, ctx.weights.light_ratio,
-                                    ctx.weights.rate(vertex.s - 1)))
+    u_pt, u_lt, u_vm = (0.0, 0.0, 0.0) if ctx.moments is None else _light_image_groups(
+        ctx, mis.groups_light_image(vertex.d_vcm, ctx.weights.moment_d_vc(vertex.d_vc, vertex.d_vm),
+                                    vertex.d_end, vertex.s == 2, cam_pdf_a, rev_w,
+                                    ctx.weights.light_ratio, ctx.weights.rate(vertex.s - 1),
+                                    vertex.d_vm, ctx.weights.vm_moment(v.surface)))
     store.splats.append(Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=vertex.s,
-                              lane=ctx.lane, u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt)), active)
+                              lane=ctx.lane, u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt),
+                              u_vm=mi.Float(u_vm)), active)
     return rays
 
 
@@ -89,9 +91,9 @@ def emitter_to_camera(ctx, store, es, medium, sample, active) -> mi.UInt32:
     contrib *= ctx.weights.emitter_to_camera(cam_pdf_a, es.pos_pdf_a)
     # The only rival, (0,2), is path tracing; the light image's rate as in its weight.
     rival = cam_pdf_a / (es.pos_pdf_a * ctx.weights.light_ratio)
-    u_pt, u_lt = _light_image_groups(ctx, (rival / (1.0 + rival), 1.0 / (1.0 + rival)))
+    u_pt, u_lt, u_vm = _light_image_groups(ctx, (rival / (1.0 + rival), 1.0 / (1.0 + rival), 0.0))
     record = Splat(pos=cam.uv, value=mi.Spectrum(finite(contrib)), s=mi.UInt32(1),
-                   lane=ctx.lane, u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt))
+                   lane=ctx.lane, u_pt=mi.Float(u_pt), u_lt=mi.Float(u_lt), u_vm=mi.Float(u_vm))
     # Outside a loop an append's mask is evaluated at once: evaluate everything in one
     # kernel first, or the emission sample is computed twice (two large kernels).
     dr.eval(record, active, rays, es)
@@ -100,6 +102,6 @@ def emitter_to_camera(ctx, store, es, medium, sample, active) -> mi.UInt32:
 
 
 def _light_image_groups(ctx, groups):
-    """(u_pt, u_lt) of a light-image contribution: with light_first_hits the light
+    """(u_pt, u_lt, u_vm) of a light-image contribution: with light_first_hits the light
     image alone samples its paths (its weight is 1)."""
-    return (0.0, 1.0) if ctx.weights.light_first_hits else groups
+    return (0.0, 1.0, 0.0) if ctx.weights.light_first_hits else groups

@@ -49,7 +49,7 @@ class StrategySet:
         self.has_emitters = has_emitters
         # Vertex merging (merge.py): camera surface vertices merge with stored light
         # vertices y_i, i >= 1; "ppm" merges alone, at a camera path's first smooth vertex.
-        self.merging = bool(settings.merging) and has_emitters and budget.light_ratio > 0
+        self.merging = bool(settings.merging) and has_emitters and budget.merges
         self.ppm = self.subset == "ppm"
 
     # -- which strategies are on ---------------------------------------------------

@@ -28,7 +28,7 @@ import mitsuba as mi
 
 from ._version import __version__
 
-FORMAT = 2         # the file's layout and calibration; a file of another is measured again
+FORMAT = 3         # the file's layout and calibration; a file of another is measured again
 
 
 @dataclass(frozen=True)
@@ -39,6 +39,8 @@ class UnitCosts:
     stored_vertex: float = 1.0  # a light vertex stored for connections
     connection: float = 1.0     # a connection's shadow ray, its evaluations and MIS
     path_ray: float = 1.0       # a ray of Mitsuba's path (its megakernel, NEE included)
+    grid_vertex: float = 1.0    # merging: a stored vertex put in the pass's hash grid
+    merge_step: float = 1.0     # merging: an iteration of a query's loop (a cell or an item)
 
     def describe(self) -> str:
         return " ".join("%s=%.3g" % (f.name, getattr(self, f.name)) for f in fields(self))

@@ -36,14 +36,15 @@ class LightVertex:
     d_vcm: mi.Float                  # MIS chain state (mis.py)
     d_vc: mi.Float
     d_end: mi.Float                  # pilot passes: the chain's far end (mis.py)
+    d_vm: mi.Float                   # moment passes with merging: d_vc's merge part
     s: mi.UInt32                     # the light vertex count of its strategies: s = i + 1
     next: mi.UInt32                  # the lane's next stored vertex, or NONE
 
 
 # p, n, uv, sh_frame, dp_du, dp_dv, wi, shape, instance, prim_index, medium, in_medium;
-# beta, d_vcm, d_vc, d_end, s, next (single-precision RGB; spectral variants store 4
+# beta, d_vcm, d_vc, d_end, d_vm, s, next (single-precision RGB; spectral variants store 4
 # wavelengths' worth)
-RECORD_BYTES = 4 * (3 + 3 + 2 + 9 + 3 + 3 + 3 + 1 + 1 + 1 + 1 + 1 + 3 + 1 + 1 + 1 + 1 + 1)
+RECORD_BYTES = 4 * (3 + 3 + 2 + 9 + 3 + 3 + 3 + 1 + 1 + 1 + 1 + 1 + 3 + 1 + 1 + 1 + 1 + 1 + 1)
 
 
 @dataclass
@@ -55,9 +56,10 @@ class Splat:
     lane: mi.UInt32                  # the light subpath's lane (its wavelengths)
     u_pt: mi.Float                   # pilot passes: balance-weight groups (optimizer.py)
     u_lt: mi.Float
+    u_vm: mi.Float                   # (merging's share)
 
 
-SPLAT_BYTES = 4 * (2 + 3 + 1 + 1 + 2)
+SPLAT_BYTES = 4 * (2 + 3 + 1 + 1 + 3)
 
 
 def empty(kind, n: int, zeroed: bool = False):
@@ -72,7 +74,10 @@ def empty(kind, n: int, zeroed: bool = False):
 
 
 def gather(source, index, active=True):
-    """``dr.gather`` of a record dataclass, field by field (see ``empty``)."""
+    """``dr.gather`` of a record dataclass, field by field (see ``empty``); a field
+    left None stays None."""
+    if source is None:
+        return None
     if dataclasses.is_dataclass(source):
         return type(source)(**{f.name: gather(getattr(source, f.name), index, active)
                                for f in dataclasses.fields(source)})

@@ -78,12 +78,22 @@ class PathState:
     specular_z1: mi.Bool    # camera walk: z_1 scattered through a delta lobe
     medium: mi.MediumPtr = None     # media: the medium the ray travels in
     sigma_prev: mi.Spectrum = None  # media: sigma_t at the ray's origin vertex (Vertex.sigma_t)
+    d_vm: mi.Float = None           # moment passes with merging: d_vc's merge part (mis.py)
+    merges: mi.UInt32 = None        # camera walk with merging: merge queries (merge.visit)
+    merge_items: mi.UInt32 = None   # the grid items those queries visited
+
+    @property
+    def d_vm_or_0(self):
+        return 0.0 if self.d_vm is None else self.d_vm
 
     @staticmethod
-    def start(ray, beta, d_vcm, d_vc, prev, active, medium=None) -> "PathState":
-        """``medium``: the medium the first ray travels in (None: a scene without media)."""
+    def start(ray, beta, d_vcm, d_vc, prev, active, medium=None, vm_shares=False,
+              merge_counts=False) -> "PathState":
+        """``medium``: the medium the first ray travels in (None: a scene without media);
+        ``vm_shares``: carry d_vm; ``merge_counts``: count merge work."""
         n = dr.width(ray.o)
         media = medium is not None
+        zero = dr.zeros(mi.UInt32, n) if merge_counts else None
         return PathState(ray=mi.Ray3f(ray), beta=mi.Spectrum(beta), rr_beta=dr.ones(mi.Spectrum, n),
                          eta=dr.ones(mi.Float, n), d_vcm=mi.Float(d_vcm), d_vc=mi.Float(d_vc),
                          d_end=mi.Float(d_vcm),
@@ -94,7 +104,9 @@ class PathState:
                          last_item=dr.full(mi.UInt32, NONE, n), slot=dr.zeros(mi.UInt32, n),
                          specular_z1=dr.zeros(mi.Bool, n),
                          medium=mi.MediumPtr(medium) if media else None,
-                         sigma_prev=dr.ones(mi.Spectrum, n) if media else None)
+                         sigma_prev=dr.ones(mi.Spectrum, n) if media else None,
+                         d_vm=dr.zeros(mi.Float, n) if vm_shares else None,
+                         merges=zero, merge_items=mi.UInt32(zero) if merge_counts else None)
 
 
 def _point(p, n, time, wavelengths) -> mi.Interaction3f:
@@ -126,8 +138,8 @@ def trace_light_subpaths(ctx, store) -> mi.UInt32:
         _light_vertex_mis(ctx, es, state, v, flight)
         connectible = state.active & v.smooth
         vertex = LightVertex(record=VertexRecord.of(v), beta=mi.Spectrum(state.beta),
-                             d_vcm=state.d_vcm, d_vc=state.d_vc, d_end=state.d_end, s=s,
-                             next=mi.UInt32(NONE))
+                             d_vcm=state.d_vcm, d_vc=state.d_vc, d_end=state.d_end,
+                             d_vm=mi.Float(state.d_vm_or_0), s=s, next=mi.UInt32(NONE))
         state.rays += splat.light_vertex_to_camera(
             ctx, store, v, vertex, u.endpoint, connectible & ctx.strategies.enabled(s, 1))
         state.last_item = store.add_vertex(vertex, ctx.lane, state.last_item,
@@ -155,6 +167,8 @@ def _light_vertex_mis(ctx, es, state: PathState, v, flight):
     d_vcm, d_vc = ctx.weights.after_hit(state.d_vcm, state.d_vc, dist2, cos_in, *dens)
     if ctx.moments is not None:
         state.d_end = mis.end_after_hit(state.d_end, dist2, cos_in, False, *dens)
+    if state.d_vm is not None:
+        state.d_vm = mis.vm_after_hit(state.d_vm, dist2, cos_in, *dens)
     state.d_vcm = dr.select(first, d_vcm1, d_vcm)
     state.d_vc = dr.select(first, d_vc1, d_vc)
 
@@ -172,7 +186,8 @@ def _light_start(ctx, store):
     d_vc = ctx.weights.light_start(es.emission_pdf, es.cos_emit, es.delta_pos | es.delta_dir)
     max_i = ctx.strategies.max_light_vertices()
     active = es.valid & (max_i is None or max_i >= 1)
-    state = PathState.start(_emission_ray(es, ctx), es.beta, 0.0, d_vc, y0, active, medium)
+    state = PathState.start(_emission_ray(es, ctx), es.beta, 0.0, d_vc, y0, active, medium,
+                            vm_shares=_vm_shares(ctx))
     state.rays += rays
     return es, state
 
@@ -196,7 +211,8 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
     # z_0: the pinhole, the lane's lens point, or its point on an orthographic film plane
     z0 = _point(rays.origin, mi.Normal3f(0.0), ctx.time, ctx.wavelengths)
     state = PathState.start(rays.ray, rays.weight, d_vcm, d_vc, z0, max_j is None or max_j >= 1,
-                            ctx.media.camera_start() if ctx.media.present else None)
+                            ctx.media.camera_start() if ctx.media.present else None,
+                            vm_shares=_vm_shares(ctx), merge_counts=ctx.grid is not None)
 
     def step(state: PathState, u: DepthSamples, sampler):
         t = state.depth + 1
@@ -223,7 +239,8 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
         if ctx.grid is not None:                # vertex merging (merge.py)
             merged = merge.merge_at(ctx, store, state, v, merge.can_merge(
                 ctx.strategies, v, state.depth, connectible))
-            state.radiance = ctx.strategies.add_merge(ctx.images, state.radiance, ctx.lane, merged)
+            if not ctx.weights.shadow:          # a shadow pass merges for its moments only
+                state.radiance = ctx.strategies.add_merge(ctx.images, state.radiance, ctx.lane, merged)
         goes_on = walking if max_j is None else walking & (state.depth < max_j)
         delta = _scatter(ctx, state, v, u, goes_on, importance=False)
         if ctx.strategies.ppm:                  # merged at its first smooth vertex
@@ -270,9 +287,16 @@ def _camera_vertex_mis(ctx, state: PathState, v, flight):
     state.d_vcm, state.d_vc = ctx.weights.after_hit(state.d_vcm, state.d_vc, dist2, cos_in, *dens)
     if ctx.moments is not None:
         state.d_end = mis.end_after_hit(state.d_end, dist2, cos_in, state.depth == 1, *dens)
+    if state.d_vm is not None:
+        state.d_vm = mis.vm_after_hit(state.d_vm, dist2, cos_in, *dens)
 
 
 # -- shared steps ---------------------------------------------------------------------
+def _vm_shares(ctx) -> bool:
+    """A moment pass with merging: its walks carry d_vm (mis.vm_after_scatter)."""
+    return ctx.moments is not None and ctx.weights.merges_evaluated
+
+
 def _next_vertex(ctx, state: PathState, sampler):
     """The vertex the ray reaches (media: past null collisions and boundaries, with the
     free flights' weight); lanes whose ray escapes stop (``flight.escaped``)."""
@@ -322,6 +346,9 @@ def _scatter(ctx, state: PathState, v: Vertex, u: DepthSamples, active, importan
     if ctx.moments is not None:
         state.d_end = mis.end_after_scatter(state.d_end, state.d_vcm, state.d_vc, cos_out, bs.pdf,
                                             pdf_rev_w, delta, state.depth == 1, importance)
+    if state.d_vm is not None:
+        state.d_vm = mis.vm_after_scatter(state.d_vm, cos_out, bs.pdf, pdf_rev_w, delta,
+                                          ctx.weights.vm_moment(v.surface))
     state.d_vcm, state.d_vc = ctx.weights.after_scatter(state.d_vcm, state.d_vc, cos_out,
                                                         bs.pdf, pdf_rev_w, delta, state.depth,
                                                         v.surface)

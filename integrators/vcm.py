@@ -12,9 +12,11 @@ converges to the right answer only as the radius shrinks over passes (r_i = r_1
 i^((alpha - 1) / 2) for pass i; ``radius_alpha`` 1 keeps it fixed and biased).  The
 default ``bdpt`` has no merging and stays unbiased.  Medium vertices connect but do
 not merge; spectral variants are refused (a light vertex's throughput holds its own
-wavelengths).  Budgets: ``light_paths``/``connections`` ``auto`` fall back to Veach's
-budget (1 light subpath per camera sample, every connection) with merging added; the
-pilot does not price merging yet.  ``strategy_subset`` ``ppm`` is progressive photon
+wavelengths).  Budgets: with ``light_paths``/``connections`` ``auto``, merging is one
+more choice of the pilot's decision (bdpt_drjit/optimizer.py): kept where its moments
+pay for its counted work (the SDS scene), left off where they do not (a diffuse box,
+Veach's room), and then no pass after the pilot builds a grid or merges; with both
+fixed, every pass merges.  ``strategy_subset`` ``ppm`` is progressive photon
 mapping (merging alone, at each camera path's first smooth vertex).
 
 {params}

@@ -551,7 +551,8 @@ def test_unit_costs_are_measured_once_and_by_calibrate(tmp_path):
     files = list((tmp_path / "cache" / "bdpt-drjit").glob("bdpt-units-%s-*.json" % variant))
     assert len(files) == 1
     stored = json.loads(files[0].read_text())["variants"][variant]
-    assert set(stored) == {"camera_ray", "light_ray", "stored_vertex", "connection", "path_ray"}
+    assert set(stored) == {"camera_ray", "light_ray", "stored_vertex", "connection", "path_ray",
+                           "grid_vertex", "merge_step"}
     assert all(0 < v < 1e-3 for v in stored.values()), stored
     second = ok(run_cli(*args, "-o", tmp_path / "b.exr", env=env))
     assert "measuring" not in second.stderr

@@ -72,7 +72,8 @@ def test_moments_of_a_first_hit_candidate():
     F^2 / (r u_lt); one it cannot (a delta z_1) costs what the base budget pays."""
     samples = MomentSamples(1)
     samples.items = MomentSample(pixel=mi.UInt32([0, 1]), f2=mi.Float([1.0, 1.0]),
-                                 u_pt=mi.Float([0.5, 1.0]), u_lt=mi.Float([0.25, 0.0]))
+                                 u_pt=mi.Float([0.5, 1.0]), u_lt=mi.Float([0.25, 0.0]),
+                                 u_vm=mi.Float([0.0, 0.0]), f2_pairs=mi.Float([0.0, 0.0]), query=mi.Float([0.0, 0.0]))
     samples.count = mi.UInt32([2])
     samples.SLOTS = 2
     rates = np.array([[2.0, 0.0, 0.0], [2.0, 0.0, 1.0]])

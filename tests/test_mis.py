@@ -354,87 +354,106 @@ def test_lafortune_weights_sum_to_one(k):
     assert np.all(total[lost] <= 1.0 + 1e-5)
 
 
-def chain_groups(P, k):
-    """The pilot's balance-weight groups (u_pt, u_lt) of every strategy, as the
+def chain_groups(P, k, eta=0.0):
+    """The pilot's balance-weight groups (u_pt, u_lt, u_vm) of every strategy, as the
     engine computes them: balance heuristic, unit rates, with each subpath's far-end
-    scalar d_end (mis.end_after_hit / end_after_scatter)."""
+    scalar d_end (mis.end_after_hit / end_after_scatter) and, with merging at rate
+    ``eta``, the merge part d_vm of d_vc (mis.vm_after_hit / vm_after_scatter); the
+    merges' own groups as ``out["vm", i]``."""
     h = mis.Heuristic("balance")
+    vm = lambda i: F(np.where(P["medium"][:, i], 0.0, eta))     # noqa: E731
     emission_pdf = F(P["e_pos"] * P["pdf_l"][:, 0])
     light = {}
     d_vc = mis.light_start(h, emission_pdf, F(P["cos_fwd"][:, 0]), B(P["point_light"]))
     d_vcm, d_vc = mis.light_first_hit(h, d_vc, F(P["nee_a"]), emission_pdf,
                                       F(P["dist2"][:, 0]), F(P["cos_bwd"][:, 0]))
-    d_end = F(np.zeros(N))
+    d_end, d_vm = F(np.zeros(N)), F(np.zeros(N))
     for i in range(1, k):
-        light[i] = (d_vcm, d_vc, d_end)
+        light[i] = (d_vcm, d_vc, d_end, d_vm)
         if i + 1 < k:
             args = (F(P["cos_fwd"][:, i]), F(P["pdf_l"][:, i]), F(P["pdf_e"][:, i]), B(P["delta"][:, i]))
             d_end = mis.end_after_scatter(d_end, d_vcm, d_vc, *args, i == 1, True)
-            d_vcm, d_vc = mis.after_scatter(h, d_vcm, d_vc, *args)
+            d_vm = mis.vm_after_scatter(d_vm, *args, vm(i))
+            d_vcm, d_vc = mis.after_scatter(h, d_vcm, d_vc, *args, 1.0, vm(i))
             d_end = mis.end_after_hit(d_end, F(P["dist2"][:, i]), F(P["cos_bwd"][:, i]), False)
+            d_vm = mis.vm_after_hit(d_vm, F(P["dist2"][:, i]), F(P["cos_bwd"][:, i]))
             d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, i]), F(P["cos_bwd"][:, i]))
     cam = {}
     d_vcm, d_vc = mis.camera_start(h, F(P["cam_w"]), 1.0, True)
-    d_end = mi.Float(d_vcm)
+    d_end, d_vm = mi.Float(d_vcm), F(np.zeros(N))
     d_end = mis.end_after_hit(d_end, F(P["dist2"][:, k - 1]), F(P["cos_fwd"][:, k - 1]), True)
     d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, k - 1]), F(P["cos_fwd"][:, k - 1]))
     for i in range(k - 1, -1, -1):
-        cam[i] = (d_vcm, d_vc, d_end)
+        cam[i] = (d_vcm, d_vc, d_end, d_vm)
         if i > 0:
             args = (F(P["cos_bwd"][:, i - 1]), F(P["pdf_e"][:, i]), F(P["pdf_l"][:, i]), B(P["delta"][:, i]))
             d_end = mis.end_after_scatter(d_end, d_vcm, d_vc, *args, k - i == 1, False)
-            d_vcm, d_vc = mis.after_scatter(h, d_vcm, d_vc, *args)
+            d_vm = mis.vm_after_scatter(d_vm, *args, vm(i))
+            d_vcm, d_vc = mis.after_scatter(h, d_vcm, d_vc, *args, 1.0, vm(i))
             d_end = mis.end_after_hit(d_end, F(P["dist2"][:, i - 1]), F(P["cos_fwd"][:, i - 1]), k - i + 1 == 1)
+            d_vm = mis.vm_after_hit(d_vm, F(P["dist2"][:, i - 1]), F(P["cos_fwd"][:, i - 1]))
             d_vcm, d_vc = mis.after_hit(h, d_vcm, d_vc, F(P["dist2"][:, i - 1]), F(P["cos_fwd"][:, i - 1]))
     out = {}
+    record = lambda v: type("Light", (), dict(zip(("d_vcm", "d_vc", "d_end", "d_vm"), v)))  # noqa: E731
     for s in range(0, k + 1):
         t = k + 1 - s
         if s == 0:
             dv = cam[0]
             direct = F(P["e_pos"]) if k == 1 else F(P["nee_a"])
-            out[s] = mis.groups_emission_hit(dv[0], dv[1], dv[2], k == 1, direct, emission_pdf)
+            out[s] = mis.groups_emission_hit(dv[0], dv[1], dv[2], k == 1, direct, emission_pdf, dv[3])
         elif s == 1 and t == 1:
             x = P["cam_w"] * P["cos_fwd"][:, 0] / P["dist2"][:, 0] / P["e_pos"]
-            out[s] = (F(x / (1 + x)), F(1 / (1 + x)))
+            out[s] = (F(x / (1 + x)), F(1 / (1 + x)), F(np.zeros(N)))
         elif s == 1:
             dv = cam[1]
             nee_w = P["nee_a"] * P["dist2"][:, 0] / P["cos_fwd"][:, 0]
             w_light = np.where(P["point_light"], 0.0, P["pdf_e"][:, 1]) / nee_w
             ratio = P["e_pos"] * P["pdf_l"][:, 0] * P["cos_bwd"][:, 0] / (nee_w * P["cos_fwd"][:, 0])
             out[s] = mis.groups_nee(dv[0], dv[1], dv[2], k - 1 == 1, F(w_light), F(ratio),
-                                    F(P["pdf_l"][:, 1]))
+                                    F(P["pdf_l"][:, 1]), 1.0, dv[3], vm(1))
         elif t == 1:
             lv = light[k - 1]
             cam_a = F(P["cam_w"] * P["cos_fwd"][:, k - 1] / P["dist2"][:, k - 1])
-            out[s] = mis.groups_light_image(lv[0], lv[1], lv[2], k - 1 == 1, cam_a, F(P["pdf_e"][:, k - 1]))
+            out[s] = mis.groups_light_image(lv[0], lv[1], lv[2], k - 1 == 1, cam_a,
+                                            F(P["pdf_e"][:, k - 1]), 1.0, 1.0, lv[3], vm(k - 1))
         else:
             lv, cv = light[s - 1], cam[s]
-            rec = type("Light", (), {"d_vcm": lv[0], "d_vc": lv[1], "d_end": lv[2]})
             cam_pdf_a = P["pdf_e"][:, s] * P["cos_fwd"][:, s - 1] / P["dist2"][:, s - 1]
             light_pdf_a = P["pdf_l"][:, s - 1] * P["cos_bwd"][:, s - 1] / P["dist2"][:, s - 1]
-            out[s] = mis.groups_connect(rec, s - 1 == 1, cv[0], cv[1], cv[2], k - s == 1,
+            out[s] = mis.groups_connect(record(lv), s - 1 == 1, cv[0], cv[1], cv[2], k - s == 1,
                                         F(cam_pdf_a), F(P["pdf_l"][:, s]), F(light_pdf_a),
-                                        F(P["pdf_e"][:, s - 1]))
-    return {s: (np.array(u[0], dtype=np.float64), np.array(u[1], dtype=np.float64))
-            for s, u in out.items()}
+                                        F(P["pdf_e"][:, s - 1]), 1.0, 1.0, 1.0, cv[3],
+                                        vm(s - 1), vm(s))
+    for i in range(1, k if eta > 0 else 1):
+        lv, cv = light[i], cam[i]
+        out["vm", i] = mis.groups_merge(record(lv), i == 1, F(P["pdf_e"][:, i]), cv[0], cv[1],
+                                        cv[2], cv[3], k - i == 1, F(P["pdf_l"][:, i]),
+                                        F(np.full(N, eta)))
+    return {s: tuple(np.array(x, dtype=np.float64) for x in u) for s, u in out.items()}
 
 
 @pytest.mark.parametrize("k", [1, 2, 3, 4, 5, 6])
-def test_pilot_groups_match_brute_force(k):
+@pytest.mark.parametrize("eta", [0.0] + ETAS)
+def test_pilot_groups_match_brute_force(k, eta):
     """The optimizer's per-sample groups: the shares of the balance heuristic's
-    denominator held by path tracing (s <= 1, t >= 2), the light image (t = 1) and
-    connections, for every strategy of random paths, delta vertices included."""
+    denominator held by path tracing (s <= 1, t >= 2), the light image (t = 1),
+    merging (every merge, at rate ``eta``) and connections, for every strategy of
+    random paths, delta vertices included, the merges' own samples too."""
     rng = np.random.default_rng(77 * k)
     P = random_path(rng, k)
-    groups = chain_groups(P, k)
+    groups = chain_groups(P, k, eta)
     valid = {s: strategy_valid(P, k, s, True) for s in range(k + 1)}
     pdfs = {s: np.where(valid[s], brute_force_pdf(P, k, s), 0.0) for s in range(k + 1)}
     group = {s: "lt" if k + 1 - s == 1 else ("pt" if s <= 1 else "con") for s in range(k + 1)}
+    for i in range(1, k if eta > 0 else 1):
+        valid["vm", i] = merge_valid(P, k, i, eta)
+        pdfs["vm", i] = np.where(valid["vm", i], brute_force_merge_pdf(P, k, i, eta), 0.0)
+        group["vm", i] = "vm"
     total = sum(pdfs.values())
-    for s in range(k + 1):
+    for s in pdfs:
         mask = valid[s] & (total > 0)
         share = {g: sum(pdfs[j] for j in pdfs if group[j] == g) / np.where(total > 0, total, 1)
-                 for g in ("pt", "lt")}
-        for g, got in zip(("pt", "lt"), groups[s]):
+                 for g in ("pt", "lt", "vm")}
+        for g, got in zip(("pt", "lt", "vm"), groups[s]):
             np.testing.assert_allclose(got[mask], share[g][mask], rtol=2e-4, atol=1e-6,
-                                       err_msg="s=%d group %s" % (s, g))
+                                       err_msg="%s group %s" % (s, g))

@@ -153,7 +153,8 @@ def test_a_pixel_that_outweighs_all_others_is_left_out():
     samples = MomentSamples(n + 1)
     pixel = list(range(n)) + [7]
     samples.items = MomentSample(pixel=mi.UInt32(pixel), f2=mi.Float([1.0] * n + [1e6]),
-                                 u_pt=mi.Float([0.2] * n + [1.0]), u_lt=mi.Float([0.8] * n + [0.0]))
+                                 u_pt=mi.Float([0.2] * n + [1.0]), u_lt=mi.Float([0.8] * n + [0.0]),
+                                 u_vm=mi.Float([0.0] * (n + 1)), f2_pairs=mi.Float([0.0] * (n + 1)), query=mi.Float([0.0] * (n + 1)))
     samples.count = mi.UInt32([1] * (n + 1))
     samples.SLOTS = 1
     means = PilotMeans(mi.Float([1.0] * n), mi.Float([0.0] * n), 0.0)
@@ -164,7 +165,8 @@ def test_a_pixel_that_outweighs_all_others_is_left_out():
     assert light_tracing == pytest.approx(n - 1)
     ordinary = MomentSamples(n)
     ordinary.items = MomentSample(pixel=mi.UInt32(list(range(n))), f2=mi.Float([1.0] * n),
-                                  u_pt=mi.Float([1.0] * n), u_lt=mi.Float([0.0] * n))
+                                  u_pt=mi.Float([1.0] * n), u_lt=mi.Float([0.0] * n), u_vm=mi.Float([0.0] * n),
+                                  f2_pairs=mi.Float([0.0] * n), query=mi.Float([0.0] * n))
     ordinary.count, ordinary.SLOTS = mi.UInt32([1] * n), 1
     assert ordinary.relative_moments(rates[:1], means)[0] == pytest.approx(n)
 
@@ -409,12 +411,13 @@ def test_a_later_moment_pass_records_every_nth_lane():
     samples = MomentSamples(4, every=2)
     lane = dr.arange(mi.UInt32, 4)
     samples.count = samples.add(mi.UInt32(0), lane, lane, mi.Spectrum(mi.Float([1.0, 5.0, 1.0, 5.0])),
-                                mi.Float(1.0), mi.Float(0.0), mi.Bool(True))
+                                mi.Float(1.0), mi.Float(0.0), mi.Float(0.0), mi.Bool(True))
     recorded = samples._camera_side()
     assert sorted(recorded.pixel.numpy().tolist()) == [0, 2]
     means = PilotMeans(mi.Float([1.0] * 4), mi.Float([0.0] * 4), 0.0)
     splats = (MomentSample(pixel=mi.UInt32([1]), f2=mi.Float([4.0]), u_pt=mi.Float([0.0]),
-                           u_lt=mi.Float([1.0])), mi.Bool([True]), 0.25)
+                           u_lt=mi.Float([1.0]), u_vm=mi.Float([0.0]),
+                           f2_pairs=mi.Float([0.0]), query=mi.Float([0.0])), mi.Bool([True]), 0.25)
     rates = np.array([[1.0, 0.0, 0.0]])
     # 2 x (1 + 1) from the camera side (lanes 1 and 3, F = 5, unrecorded), 0.25 x 4
     # from the splat
@@ -505,7 +508,7 @@ def test_a_moment_pass_without_splats_of_its_chosen_light_subpaths():
     n = 3
     items = Splat(pos=dr.zeros(mi.Point2f, n), value=dr.ones(mi.Spectrum, n),
                   s=dr.full(mi.UInt32, 2, n), lane=mi.UInt32([1, 2, 3]),
-                  u_pt=dr.zeros(mi.Float, n), u_lt=dr.ones(mi.Float, n))
+                  u_pt=dr.zeros(mi.Float, n), u_lt=dr.ones(mi.Float, n), u_vm=dr.zeros(mi.Float, n))
     store = NS(splats=NS(size=lambda: n, capacity=16, items=items))
-    ctx = NS(mis_rates=(1.0, 1.0), moments=NS(every=4), camera=None)
+    ctx = NS(mis_rates=(1.0, 1.0, 0.0), moments=NS(every=4), camera=None)
     assert _splat_moments(ctx, store) is None

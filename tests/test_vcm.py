@@ -204,7 +204,7 @@ def test_settings_and_budgets():
     from bdpt_drjit.budgets import fixed_budget
     s = Settings(merging=True)
     assert s.radius == 0.0 and s.radius_alpha == 0.75
-    assert str(fixed_budget(s)) == "light_paths=1 connections=all"   # auto: Veach's
+    assert fixed_budget(s) is None           # auto: the pilot decides, merging included
     assert str(fixed_budget(Settings(merging=True, light_paths="0.5", connections="2"))) \
         == "light_paths=0.5 connections=2"
     ppm = Settings(strategy_subset="ppm")
@@ -226,3 +226,127 @@ def test_vcm_plugin_is_bdpt_with_merging():
     np.testing.assert_allclose(img, res.image, rtol=1e-5, atol=1e-6)
     assert "merging=True" in str(mi.load_dict({"type": "vcm"}))
     assert not mi.load_dict({"type": "bdpt"}).settings.get("merging", False)
+
+
+# -- efficiency-aware merging: merging as a candidate of the budget decision -------------
+def _render_counting_merges(scene, monkeypatch, **kw):
+    """A render, and the passes (by index) that built a hash grid and ran merge queries."""
+    built, queried = [], []
+    build, merge_at = merge.HashGrid.build, merge.merge_at
+    import sys
+    render_module = sys.modules["bdpt_drjit.render"]
+    current = {}
+    pass_ = render_module.Renderer._render_pass
+
+    def spy_pass(self, index, *args):
+        current["index"] = index
+        return pass_(self, index, *args)
+
+    def spy_build(*args, **kwargs):
+        built.append(current["index"])
+        return build(*args, **kwargs)
+
+    def spy_merge(*args, **kwargs):
+        queried.append(current["index"])
+        return merge_at(*args, **kwargs)
+
+    monkeypatch.setattr(render_module.Renderer, "_render_pass", spy_pass)
+    monkeypatch.setattr(merge.HashGrid, "build", staticmethod(spy_build))
+    monkeypatch.setattr(merge, "merge_at", spy_merge)
+    res = bdpt_drjit.render(scene, **kw)
+    return res, sorted(set(built)), sorted(set(queried))
+
+
+@pytest.mark.auto_budget
+def test_vcm_on_the_diffuse_box_leaves_merging_off_and_pays_for_no_grid(monkeypatch):
+    """On the diffuse Cornell box merging buys nothing: ``vcm`` (merging on, budgets
+    auto) prices it in the pilot and leaves it off.  Only the pilot's passes (0 and 1)
+    build a grid and query it, for the moments alone (their images are BDPT's: the
+    same image as bdpt's where the decisions agree); the passes after build none and
+    query nothing, and they are as large as bdpt's (no small passes for a radius that
+    does not shrink).  Before, vcm fell back to Veach's budget with merging in every
+    pass."""
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=32, resy=32)
+    res, built, queried = _render_counting_merges(scene, monkeypatch, spp=64, seed=3,
+                                                  max_depth=8, merging=True)
+    assert "merging=off" in res.stats["budget"], res.stats["decision"]
+    assert built == [0, 1] and queried == [0, 1], (built, queried)
+    assert "merges=" in res.stats["cost_counts"]
+    plain = bdpt_drjit.render(scene, spp=64, seed=3, max_depth=8)
+    assert res.passes == plain.passes
+
+
+@pytest.mark.auto_budget
+def test_sds_scene_keeps_merging():
+    """The caustic seen in the mirror is merging's alone: the pilot keeps merging on."""
+    scene = mi.load_file(SDS, resx=32, resy=32)
+    for seed in (1, 2):
+        res = bdpt_drjit.render(scene, spp=32, seed=seed, max_depth=8, merging=True)
+        assert "merging=on" in res.stats["budget"], res.stats["decision"]
+
+
+@pytest.mark.auto_budget
+def test_vcm_decision_is_the_same_for_a_seed(monkeypatch):
+    """The merging decision reads no clock: the same seed gives the same budget, counts
+    and image with the kernels' timings made random (tests/test_optimizer.py's rule)."""
+    scene = mi.load_file(SDS, resx=32, resy=32)
+    real = dr.kernel_history
+    rng = np.random.default_rng(0)
+    runs = []
+    for patch in (False, True):
+        if patch:
+            monkeypatch.setattr(dr, "kernel_history", lambda *a: [
+                dict(e, execution_time=float(rng.uniform(0, 100))) for e in real(*a)])
+        r = bdpt_drjit.render(scene, spp=32, seed=5, max_depth=8, merging=True)
+        runs.append((r.stats["budget"], r.stats["decision"], r.stats["cost_counts"], r.image))
+    assert runs[0][:3] == runs[1][:3]
+    np.testing.assert_allclose(runs[0][3], runs[1][3], rtol=1e-5, atol=1e-6)
+
+
+def test_merging_candidates_and_their_cost():
+    """Every budget with light subpaths (not light_first_hits) has a merging twin; a
+    merging candidate is covered only by a moment pass that merges; its cost adds the
+    grid's build per stored vertex and the query steps, 8 per query plus the items,
+    whose count grows with the candidate's eta."""
+    from bdpt_drjit.budgets import Budget
+    from bdpt_drjit.optimizer import Costs, candidates, covers
+    from bdpt_drjit.units import UnitCosts
+    plain = candidates(False)
+    both = candidates(False, merging=True)
+    assert len(both) == len(plain) + sum(b.light_ratio > 0 and not b.light_first_hits
+                                         for b in plain)
+    assert all(b.merging is not None for b in both)
+    on, off = Budget(0.5, "all", merging=True), Budget(0.5, "all", merging=False)
+    assert covers(on, off) and covers(on, on) and not covers(off, on)
+    units = UnitCosts(camera_ray=1, light_ray=1, stored_vertex=1, connection=1, path_ray=1,
+                      grid_vertex=2.0, merge_step=3.0)
+    c = Costs(units, camera_rays=4, light_rays=5, stored_per_path=3, connection_rays=6,
+              merges=2, merge_items=0.01, merge_eta=100.0)
+    assert c.of(on) - c.of(off) == pytest.approx(0.5 * 3 * 2.0 + (8 * 2 + 0.01 * 0.5 * 100) * 3.0)
+    light_only = Budget(0.5, 0, merging=True)      # merging stores vertices without connections
+    assert c.of(light_only) - c.of(Budget(0.5, 0, merging=False)) == pytest.approx(
+        0.5 * 3 * 1.0 + c.merging(0.5))
+
+
+def test_merge_pairs_scale_with_the_merging_rate_squared():
+    """A merge query's sample: its photons' squares count as independent samples (F^2 /
+    share, as every other), the rest of its square, the pairs, as (v / share)^2: more
+    photons (rate v) do not average away the camera path's own variance.  A candidate
+    without merging reads the other samples alone, as BDPT's pilot would have them
+    (F / (1 - u_vm), shares over 1 - u_vm)."""
+    from bdpt_drjit.optimizer import MomentSample, MomentSamples, PilotMeans
+    n = 3                                   # a query and another sample in each of 3 pixels
+    samples = MomentSamples(2 * n)
+    samples.items = MomentSample(pixel=mi.UInt32([0, 1, 2] * 2), f2=mi.Float([1.0] * 2 * n),
+                                 u_pt=mi.Float([0.2] * n + [0.5] * n), u_lt=mi.Float([0.0] * 2 * n),
+                                 u_vm=mi.Float([0.8] * n + [0.5] * n),
+                                 f2_pairs=mi.Float([3.0] * n + [0.0] * n),
+                                 query=mi.Float([1.0] * n + [0.0] * n))
+    samples.count, samples.SLOTS = mi.UInt32([1] * 2 * n), 1
+    means = PilotMeans(blurred=mi.Float([2.0] * n), own=mi.Float([0.0] * n), floor=1e-9)
+    rates = np.array([[1.0, 1.0, 0.0, 0.0], [1.0, 1.0, 0.0, 1.0], [1.0, 1.0, 0.0, 4.0]])
+    off, same, more = samples.relative_moments(rates, means, merging=True) / n
+    assert off == pytest.approx(1.0 / 4 / (0.5 * 0.5))
+    assert same == pytest.approx((1.0 + 3.0) / 4 + 1.0 / 4)      # the pass itself: F^2
+    q, o = 0.2 + 4 * 0.8, 0.5 + 4 * 0.5
+    assert more == pytest.approx(1.0 / 4 / q + 3.0 / 4 * (4 / q) ** 2 + 1.0 / 4 / o)

@@ -139,8 +139,10 @@ def _merging_lines(scene, settings: dict) -> list:
         media = bool(scene.sensors()) and Media(scene, scene.sensors()[0]).present
     except Exception:       # noqa: BLE001  (the verdict line reports a refused medium)
         media = False
+    auto = "auto" in (s.light_paths, s.connections) and s.strategy_subset == "all"
     return ["merging:    on (vertex connection and merging): consistent, not unbiased; "
             "radius r_1 = %.4g, alpha %g" % (first_radius(scene, scene.sensors()[0], s.radius), s.radius_alpha)
+            + ("; budgets auto: the pilot keeps merging only where it pays" if auto else "")
             + ("; medium vertices connect but do not merge" if media else
                "; (medium vertices would connect but not merge)")]
 
