@@ -30,8 +30,10 @@ step() {   # step NAME SECONDS COMMAND...: run with a time limit, log, report
     echo "== $name: exit $? in $((SECONDS - start)) s" | tee -a "$OUT/summary.txt"
     tail -n 25 "$OUT/$name.log"
 }
-profile() {   # Veach's BDPT, kernel by kernel, in the Cornell box and Veach's room
+profile() {   # Veach's BDPT, kernel by kernel, in the Cornell box and Veach's room; vcm
     $PY -m benchmarks.profile_pass --res "$RES" --spp 4
+    $PY -m benchmarks.profile_pass --res "$RES" --spp 1 \
+        --budget "light_paths=1 connections=all merging=true"
     $PY -m benchmarks.profile_pass --res "$RES" --spp 4 --max-depth 7 \
         --scene "$EXT/veach-bidir/scene.xml"
 }
@@ -42,7 +44,7 @@ throughput() {   # samples per second against path, the same two scenes
 }
 passes() {   # per-pass wall and kernel time; pass sizes, vcm and pssmlt against path
     $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 --repeats 2 --methods veach-2g,veach,veach-separate-calls,default
-    $PY -m benchmarks.gpu_passes --res "$RES" --spp 4 --repeats 1 --methods veach-2g,vcm,pssmlt
+    $PY -m benchmarks.gpu_passes --res "$RES" --spp 4 --repeats 1 --methods veach,vcm,pssmlt
     $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 --repeats 2 --max-depth 7 \
         --scene "$EXT/veach-bidir/scene.xml" --methods veach-2g,veach,veach-separate-calls,default
 }
@@ -53,10 +55,10 @@ breakdown() {   # the camera walk without connections, and with neither light wa
 }
 export -f profile throughput passes breakdown; export PY RES EXT
 step calibrate 90 $PY -m bdpt_drjit calibrate --variant "$BDPT_VARIANT"
-step profile 60 profile
+step profile 40 profile
 step throughput 100 throughput
 step passes 150 passes
 step breakdown 40 breakdown
-step tests 170 $PY -m pytest -q -p no:cacheprovider -n "${JOBS:-8}" --ignore tests/test_cluster.py \
+step tests 160 $PY -m pytest -q -p no:cacheprovider -n "${JOBS:-8}" --ignore tests/test_cluster.py \
     -k \'not spectral_and_mono and not variant_switch and not specfilm\'
-step efficiency 200 $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3
+step efficiency 110 $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3
