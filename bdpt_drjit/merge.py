@@ -191,12 +191,16 @@ def _merge_one(ctx, pos, active, state, v):
     active &= ctx.strategies.merges(s - 1, state.depth)
     cos_g, ok = v.cosine(w_y)
     active &= ok & (cos_g > 0)
-    f, pdf_w = v.eval(w_y, active)          # z_j toward y_{i-1}: the light side's reverse
+    w = ctx.weights
+    # pdf_w: z_j toward y_{i-1}, the light side's reverse; rev_w: toward z_{j-1}, the
+    # camera side's reverse.
+    if w.merges_evaluated:
+        f, pdf_w, rev_w = v.eval_and_reverse(w_y, active)
+    else:
+        f, pdf_w = v.eval(w_y, active)
     value = f * beta_l / cos_g
     active &= spectrum_nonzero(value)
-    w = ctx.weights
     if w.merges_evaluated:
-        rev_w = v.reverse_pdf(w_y, active)   # toward z_{j-1}: the camera side's reverse
         light_d_vc = cam_d_vc = None
         if ctx.moments is not None:          # (a shadow pass's chains lack merging's part)
             light_d_vc = w.moment_d_vc(y.d_vc, y.d_vm)
