@@ -381,16 +381,28 @@ class Renderer:
             self._accepted_count)
 
     def _replan(self) -> None:
-        """Where the pilot of a render with merging chose no merging: the passes after
-        its round as large as the memory budget allows (small passes serve only a
-        shrinking radius; each pass costs a fixed time)."""
-        if (not self.settings.merging or self.settings.samples_per_pass or self.budget.merges
-                or not self.redecide):
+        """The passes after the pilot's round, sized for the budget it chose (not with
+        an explicit samples_per_pass, a film rendered in pixel ranges, or on a cluster,
+        whose workers render a plan fixed before the pilot):
+
+        * path tracing: Mitsuba's path, whose lanes hold little, in as few passes as
+          ``backend.path_pass_lanes`` allows (a GPU pass's fixed cost is 17-40 ms: at
+          BDPT's 1 spp per pass the default took 13x ``path``'s time on an H100 at
+          1024x1024, 16 spp);
+        * merging left off in a render with merging: as large as the memory budget
+          allows (small passes serve only a shrinking radius)."""
+        rest = self.plan[self._pilot_round:]
+        if (not self.redecide or self.settings.samples_per_pass or not rest
+                or rest[0][1] != self.pixels):
             return
-        head = self.plan[:self._pilot_round]
-        done = sum(n * spp for _, n, spp in head) // self.pixels
-        self.plan = head + plan_passes(self.spp - done, self.pixels, self._max_lanes, 0,
-                                       self._accepted_count)
+        if self.budget == PATH_TRACING and self._path_tracer is not None:
+            lanes = backend.path_pass_lanes(self.memory_budget)
+        elif self.settings.merging and not self.budget.merges:
+            lanes = self._max_lanes
+        else:
+            return
+        self.plan = self.plan[:self._pilot_round] + plan_passes(
+            sum(spp for _, _, spp in rest), self.pixels, lanes, 0, self._accepted_count)
 
     def merge_eta(self, after: int) -> float:
         """Merging's rate per light subpath per camera sample over the passes after
@@ -419,21 +431,6 @@ class Renderer:
                      if ends[i] >= c * pilot_spp - 1e-9]
             if after:
                 self._moment_passes.add(after[0])
-
-    def _plan_path_tracing(self) -> None:
-        """Where the pilot chose path tracing, the passes after its round run Mitsuba's
-        path, whose lanes hold little: as few of them as ``backend.path_pass_lanes``
-        allows (a GPU pass's fixed cost is 25-40 ms: at the BDPT plan's 1 spp per pass
-        the default took 13x ``path``'s time on an H100 at 1024x1024, 16 spp).  Not on
-        a cluster, whose workers render a plan fixed before the pilot."""
-        rest = self.plan[self._pilot_round:]
-        if (not self.redecide or self.budget != PATH_TRACING or self._path_tracer is None
-                or not rest or rest[0][1] != self.pixels):
-            return
-        self.plan = self.plan[:self._pilot_round] + plan_passes(
-            sum(spp for _, _, spp in rest), self.pixels,
-            backend.path_pass_lanes(self.memory_budget), self.settings.samples_per_pass,
-            self._accepted_count)
 
     def _accepted_count(self, n: int) -> int:
         sampler = self.sensor.sampler().clone()
@@ -693,7 +690,6 @@ class Renderer:
                                              self.plan[index][2], filled).budget
             self._replan()
             self._plan_rounds()
-            self._plan_path_tracing()
 
     def _pilot_pixels(self, shape) -> np.ndarray:
         """The crop pixels (H, W) of a quarter-film pilot's passes: those whose index
