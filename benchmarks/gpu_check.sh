@@ -5,9 +5,9 @@
 #   BDPT_SHARED=<shared> bash benchmarks/gpu_check.sh            # on the GPU machine
 #   VARIANT=llvm_ad_rgb RES=64 SPP=8 STEPS="efficiency profile" bash benchmarks/gpu_check.sh
 #                                                                # a dry run on a CPU
-# A machine without the Python packages gets them from wheels in .whl/ (Mitsuba's
-# stripped to cuda_ad_rgb, Dr.Jit's, OpenEXR's: all *.whl and *.zip there are unpacked
-# into /tmp/site) and the external scenes from .whl/shared when BDPT_SHARED is unset.
+# A machine without the Python packages gets them from wheels in .whl/ (made here by
+# benchmarks/gpu_wheels.sh: all *.whl and *.zip there are unpacked into /tmp/site) and
+# the external scenes from .whl/shared when BDPT_SHARED is unset.
 set -u
 cd "$(dirname "$0")/.."
 if [ -d .whl ] && ! python3 -c "import mitsuba" 2>/dev/null; then
