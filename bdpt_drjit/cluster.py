@@ -430,7 +430,10 @@ class Cluster:
         job = Job(scene=self.scene_path.name, params=dict(params), sensor=int(sensor),
                   spp=renderer.spp, seed=renderer.seed,
                   strategy_images=bool(renderer.strategy_images),
-                  settings=renderer.settings.as_dict(), variant=self.variant, threads=threads,
+                  # The budget resolved here: "auto" follows each machine's memory.
+                  settings=dict(renderer.settings.as_dict(),
+                                memory_budget=renderer.memory_budget),
+                  variant=self.variant, threads=threads,
                   folder=str(self.scene_path.parent),
                   unit_costs=renderer.pilot.costs.units if renderer.pilot else None)
         placements = ([{"num_cpus": 1}] * a.workers if a.kind == "local"

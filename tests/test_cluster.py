@@ -268,6 +268,24 @@ def test_python_api_on_a_cluster():
         bdpt_drjit.render(mi.load_file(CORNELL, resx=8, resy=8), cluster="local:2", spp=1)
 
 
+
+@needs_ray
+def test_workers_plan_with_the_drivers_memory_budget(monkeypatch):
+    """The default memory budget follows the machine (backend.py: 2 GiB on a CPU, a
+    share of a GPU's memory): workers whose machine differs from the driver's would
+    plan other passes, and the cluster refused to render.  Here the driver's default
+    is 1 MiB, which splits the film into pixel ranges, and the workers' 2 GiB: they
+    render the driver's plan, and the image is the local one."""
+    import bdpt_drjit
+    from bdpt_drjit import backend
+    monkeypatch.setattr(backend, "default_memory_budget", lambda: 1 << 20)  # this process
+    kw = dict(spp=2, seed=3, max_depth=3, light_paths=1, connections="all",
+              scene_params={"resx": 40, "resy": 40})
+    here = bdpt_drjit.render(CORNELL, **kw)
+    there = bdpt_drjit.render(CORNELL, cluster="local:2", **kw)
+    assert there.passes == here.passes > 2          # pixel ranges: more than 1 per spp
+    np.testing.assert_allclose(there.image, here.image, rtol=1e-5, atol=1e-6)
+
 @pytest.mark.parametrize("address", ["local:0", "local", "http://x", "nowhere"])
 def test_bad_cluster_address(tmp_path, address):
     clean_error(run_cli("render", *SCENE, "--spp", 2, "--cluster", address,
