@@ -319,6 +319,10 @@ def test_time_and_checkpoint_use_many_passes(tmp_path):
     _, meta = read_exr(out)
     assert meta["spp"] == 32 and meta["passes"] == 16 + 1 and meta["samples_per_pass"] == 2
     assert "chose" in meta["budget_decision"]
+    # The memory budget as resolved here ("auto" follows the machine: backend.py), so
+    # that the header says which passes, and so which image, the seed gave.
+    from bdpt_drjit import backend
+    assert int(meta["memory_budget"]) == backend.default_memory_budget()
 
 
 def _wait_until_importing(proc, library="drjit", timeout=60.0):

@@ -143,6 +143,7 @@ def _metadata(args, path: Path, params: dict, renderer, cluster=None) -> dict:
             value = "all" if value is None else "%d,%d" % value
         meta[p.name] = int(value) if p.kind is bool else value
     meta["samples_per_pass"] = max(p[2] for p in renderer.plan)
+    meta["memory_budget"] = renderer.memory_budget     # "auto" as resolved on this machine
     if cluster is not None:
         meta.update(cluster=args.cluster, workers=cluster.size)
     return meta
