@@ -250,6 +250,9 @@ class MomentSamples:
         # every render) compiled a kernel per decision (0.03-0.05 s).
         merge = rates[:, 3] if rates.shape[1] > 3 else np.zeros(len(rates))   # no merging
         rate, kappa, vm = f64(rates[:, 0]), f64(rates[:, 1]), f64(merge)
+        # Gathered at an opaque index: a literal index reads the value to the host, one
+        # sync per candidate and array (114 in a pilot pass: a GPU sync each).
+        first = dr.opaque(mi.UInt32, 0)
         sums = np.zeros(len(rates))
         for relative, u_pt, u_lt, u_vm, pixel, pairs, query in groups:
             out_pixel = dr.gather(mi.Bool, dropped, pixel)
@@ -261,7 +264,7 @@ class MomentSamples:
             # 256x256, now 8).
             out = dr.zeros(f64, len(rates))
             for c, first_hits in enumerate(rates[:, 2].tolist()):
-                r, k, v = (dr.gather(f64, a, c) for a in (rate, kappa, vm))
+                r, k, v = (dr.gather(f64, a, first + c) for a in (rate, kappa, vm))
                 share = u_pt + r * u_lt + k * u_con + v * u_vm
                 if first_hits:
                     share = dr.select(u_lt > 0, r * u_lt, share)

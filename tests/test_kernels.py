@@ -74,3 +74,20 @@ def test_luminance_compiles_one_kernel_for_every_width():
         out = launches(lambda: dr.eval(luminance(mi.Spectrum(dr.arange(mi.Float, width)))))
         if width == 7:
             assert out and not compiled(out)
+
+
+@pytest.mark.auto_budget
+def test_a_pass_reads_the_host_a_few_times():
+    """Copies (reads to the host, each a sync on a GPU) stay few in every pass of an
+    auto render.  The pilot's moment sums gathered each candidate's rates at a
+    literal index, which Dr.Jit reads to the host: 124 copies in its BDPT pass."""
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=32, resy=32)
+    from bdpt_drjit.render import Renderer
+    renderer = Renderer(scene, spp=32, seed=1, max_depth=5)
+    copies = []
+    while not renderer.done:
+        dr.kernel_history()
+        renderer.run_pass()
+        copies.append(sum(e["type"] == dr.KernelType.Memcpy for e in dr.kernel_history()))
+    assert renderer.pilot is not None and len(copies) >= 3
+    assert max(copies) <= 10, copies
