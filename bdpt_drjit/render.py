@@ -44,14 +44,18 @@ from . import backend, merge
 from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore, gather
 from .walk import path_tracer_walk, trace_camera_subpaths, trace_light_subpaths
 
-# Bytes per lane besides the pools: camera rays, the samplers' state, the lane's list
-# head, and each walk's final state (a loop's outputs are arrays; inside it the state
-# lives in registers).  Measured: 2172 MiB peak for 2.1M lanes of the Cornell box at
-# max_depth 8, 1035 bytes per lane with the pools' 772.
-_LANE_BYTES = 300
-# Stored light vertices and splats per lane a pass plans for (measured: 3.0 and 3.2
+# Bytes a pass holds per camera lane besides its light subpaths' (camera rays, the
+# samplers' state, the camera walk's outputs, the film's writes), and per light subpath
+# besides its pools (the light walk's state and outputs).  Peak memory of a pass
+# (dr.detail.malloc_watermark over the pass, 256x256, 3 spp per pass, 2026-11-26): Veach's
+# BDPT 1340 bytes per lane in the Cornell box and 2200 in Veach's bidirectional room (6
+# stored vertices per light subpath of capacity); light_paths=0.25 464 and 683.
+_CAMERA_LANE_BYTES = 300
+_LIGHT_PATH_BYTES = 500
+# Stored light vertices and splats per light subpath a pass plans for (measured: 3.0 and 3.2
 # on the Cornell box, at max_depth 8 and -1 alike; 2.6 and 3.4 with its glass and
-# mirror spheres).  A pass that needs more runs its light walk again with larger pools.
+# mirror spheres).  A pass that needs more runs its light walk again with larger pools,
+# and the passes after it are planned with those.
 _VERTICES_PER_LANE = 4
 _SPLATS_PER_LANE = 5
 
@@ -299,6 +303,12 @@ class Renderer:
         layers = self.strategies.layers() if strategy_images else []
         self._unit_costs = unit_costs
         self.timings = None             # calibrate(): kernel seconds of the pilot's walks
+        # Pool capacities per light subpath, raised on overflow, for every pass after:
+        # a light subpath's stored vertices do not depend on the pass's light subpaths
+        # (kept per count, every new count overflowed again: Veach's room ran one light
+        # walk twice per render: 7% of its time at 128x128, 256 spp).
+        self._capacity = [_VERTICES_PER_LANE, _SPLATS_PER_LANE]
+        self._outgrown = False          # a light walk raised them in this pass
         self._plan(fixed, layers)
         self.redecide = True        # False: the pilot's decision and plan hold (cluster.py)
         aov_list = aovs.parse(self.settings.aovs)
@@ -311,11 +321,6 @@ class Renderer:
         self.rays = 0                 # traced by this engine's walks
         self.path_tracer_spp = 0.0    # samples per pixel rendered by Mitsuba's path
         self._last_lanes = 0
-        # Pool capacities per light subpath, raised on overflow, for every pass after:
-        # a light subpath's stored vertices do not depend on the pass's light subpaths
-        # (kept per count, every new count overflowed again: Veach's room ran one light
-        # walk twice per render: 7% of its time at 128x128, 256 spp).
-        self._capacity = [_VERTICES_PER_LANE, _SPLATS_PER_LANE]
         self._vertices_per_path = 3.0   # stored light vertices per light subpath, last pass
         self.kernel_history = []        # kernels calibrate()'s timing took from Dr.Jit's history
 
@@ -323,11 +328,9 @@ class Renderer:
         """The passes: equal ones that fit the memory budget, opened by a pilot round
         where the budget is "auto" (not for fewer than MIN_SPP samples, nor for a film
         rendered in pixel ranges)."""
-        lane_bytes = (_LANE_BYTES + _VERTICES_PER_LANE * RECORD_BYTES
-                      + _SPLATS_PER_LANE * SPLAT_BYTES + len(layers) * 16)
         self.memory_budget = self.settings.memory_budget or backend.default_memory_budget()
-        max_lanes = min(max(1024, self.memory_budget // lane_bytes), 2 ** 31)
-        self._max_lanes = max_lanes     # without merging (_replan)
+        self._layer_bytes = len(layers) * 16
+        max_lanes = self._lanes_for(fixed or BDPT)
         if self.settings.merging and not self.settings.samples_per_pass:
             # The radius shrinks per pass (merge.py): passes of a few samples per pixel.
             max_lanes = min(max_lanes, max(merge.PASS_LANES, self.pixels))
@@ -346,6 +349,23 @@ class Renderer:
                     "rr_depth": self.settings.rr_depth,
                     "hide_emitters": self.settings.hide_emitters})
             self.pilot.costs.path_tracer = True
+
+    def _lanes_for(self, budget: Budget) -> int:
+        """The camera lanes of a pass of ``budget`` that fit the memory budget: its light
+        subpaths per lane (light_ratio) with their pools at the capacities in force,
+        the vertex pool only where some strategy stores a vertex.  Never more than a
+        pass of Veach's BDPT at the first capacities: on the CPU a larger pass is
+        slower (each pass of a new size writes fresh memory, a page fault per 4 KiB:
+        light_paths=0.25 in one pass of 63 spp took 1.11-1.16x the time of three, Cornell
+        box 256x256)."""
+        def lanes(ratio: float, vertices: int, splats: int, stores: bool) -> int:
+            pools = (vertices * RECORD_BYTES if stores else 0) + splats * SPLAT_BYTES
+            lane_bytes = (_CAMERA_LANE_BYTES + self._layer_bytes
+                          + max(ratio, 0.0) * (_LIGHT_PATH_BYTES + pools))
+            return int(min(max(1024, self.memory_budget // lane_bytes), 2 ** 31))
+        stores = budget.connects or (self.settings.merging and budget.merges)
+        return min(lanes(budget.light_ratio, *self._capacity, stores),
+                   lanes(1.0, _VERTICES_PER_LANE, _SPLATS_PER_LANE, True))
 
     def _plan_pilot(self, max_lanes: int) -> None:
         """An "auto" budget: the render opens with one round of pilot passes, light and
@@ -380,29 +400,35 @@ class Renderer:
             self.spp - spp, self.pixels, max_lanes, self.settings.samples_per_pass,
             self._accepted_count)
 
-    def _replan(self) -> None:
-        """The passes after the pilot's round, sized for the budget it chose (not with
-        an explicit samples_per_pass, a film rendered in pixel ranges, or on a cluster,
-        whose workers render a plan fixed before the pilot):
+    def _replan(self, after: int) -> None:
+        """The passes after pass ``after``, sized anew for the budget in force and the
+        pools' capacities: after the pilot's decision, a re-decision, or a light walk
+        that outgrew its pools (not with an explicit samples_per_pass, a film rendered
+        in pixel ranges, on a cluster, whose workers render a plan fixed before the
+        pilot, nor inside the pilot's round):
 
         * path tracing: Mitsuba's path, whose lanes hold little, in as few passes as
           ``backend.path_pass_lanes`` allows (a GPU pass's fixed cost is 17-40 ms: at
           BDPT's 1 spp per pass the default took 13x ``path``'s time on an H100 at
           1024x1024, 16 spp);
-        * merging left off in a render with merging: as large as the memory budget
-          allows (small passes serve only a shrinking radius)."""
-        rest = self.plan[self._pilot_round:]
-        if (not self.redecide or self.settings.samples_per_pass or not rest
-                or rest[0][1] != self.pixels):
+        * otherwise as many lanes as the budget's light subpaths and pools leave room
+          for (``_lanes_for``; the plan before knew neither: Veach's BDPT in Veach's
+          room held 2.4x the memory budget), merging's passes kept small (their
+          radius shrinks per pass)."""
+        rest = self.plan[after + 1:]
+        if after < self._pilot_round - 1:
             return
-        if self.budget == PATH_TRACING and self._path_tracer is not None:
-            lanes = backend.path_pass_lanes(self.memory_budget)
-        elif self.settings.merging and not self.budget.merges:
-            lanes = self._max_lanes
-        else:
-            return
-        self.plan = self.plan[:self._pilot_round] + plan_passes(
-            sum(spp for _, _, spp in rest), self.pixels, lanes, 0, self._accepted_count)
+        if (self.redecide and not self.settings.samples_per_pass and rest
+                and rest[0][1] == self.pixels):
+            if self.budget == PATH_TRACING and self._path_tracer is not None:
+                lanes = backend.path_pass_lanes(self.memory_budget)
+            else:
+                lanes = self._lanes_for(self.budget)
+                if self.budget.merges and self.settings.merging:
+                    lanes = min(lanes, max(merge.PASS_LANES, self.pixels))
+            self.plan = self.plan[:after + 1] + plan_passes(
+                sum(spp for _, _, spp in rest), self.pixels, lanes, 0, self._accepted_count)
+        self._plan_rounds(after)
 
     def merge_eta(self, after: int) -> float:
         """Merging's rate per light subpath per camera sample over the passes after
@@ -412,8 +438,8 @@ class Renderer:
                 * n * spp for i, (_, n, spp) in enumerate(self.plan) if i > after]
         return float(np.mean(etas)) if etas else 0.0
 
-    def _plan_rounds(self) -> None:
-        """Re-decisions (optimizer.Pilot.redecide): the first pass of the plan that
+    def _plan_rounds(self, done: int) -> None:
+        """Re-decisions (optimizer.Pilot.redecide) after pass ``done``: the first pass of the plan that
         ends at or after 4, 16 and 64 times the pilot's spp (the last pass excepted)
         records moments, on the first sample of every other pixel, with the balance
         heuristic; the decision after it holds until the next.  The plan stays as it
@@ -422,12 +448,15 @@ class Renderer:
         spp, 8.0 s against 6.75 s), and a moment pass costs 4-20% more than a plain
         one.  Not where the pilot chose path tracing (its samples give no other
         candidate's moment), nor on a cluster (the workers' plan is fixed)."""
-        if not self.redecide or self.budget.light_ratio <= 0:
+        self._moment_passes = {i for i in self._moment_passes if i <= done}
+        if not self.redecide or self.budget.light_ratio <= 0 or self.pilot is None:
             return
         ends = np.cumsum([n * spp / self.pixels for _, n, spp in self.plan])
         pilot_spp = ends[self._pilot_round - 1]
         for c in (4, 16, 64):
-            after = [i for i in range(self._pilot_round, len(self.plan) - 1)
+            if ends[done] >= c * pilot_spp - 1e-9:
+                continue                                # reached by the passes done
+            after = [i for i in range(done + 1, len(self.plan) - 1)
                      if ends[i] >= c * pilot_spp - 1e-9]
             if after:
                 self._moment_passes.add(after[0])
@@ -476,6 +505,9 @@ class Renderer:
         history = dr.flag(dr.JitFlag.KernelHistory) or timed
         with dr.suspend_grad(), dr.scoped_set_flag(dr.JitFlag.KernelHistory, history):
             self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
+            if self._outgrown:
+                self._outgrown = False
+                self._replan(index)
             # A pass counts once it is rendered: Dr.Jit launches kernels asynchronously,
             # and a pass that reads nothing back (Mitsuba's path) would only be queued.
             dr.sync_thread()
@@ -608,6 +640,7 @@ class Renderer:
             self.budget = self.pilot.redecide(
                 ctx.moments, _splat_moments(ctx, store), self._luminance(),
                 self.spp_done + n_pixels * spp / self.pixels, ctx.budget, ctx.mis_rates).budget
+            self._replan(index)
 
     def _put_splats(self, index, store, ctx, lanes: int, pixel_offset: int):
         """The pass's light image on the film: the splats written, read by a kernel as
@@ -688,8 +721,7 @@ class Renderer:
             self.pilot.costs.merge_eta = self.merge_eta(self._pilot_round - 1)
             self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean,
                                              self.plan[index][2], filled).budget
-            self._replan()
-            self._plan_rounds()
+            self._replan(self._pilot_round - 1)
 
     def _pilot_pixels(self, shape) -> np.ndarray:
         """The crop pixels (H, W) of a quarter-film pilot's passes: those whose index
@@ -719,8 +751,8 @@ class Renderer:
         light = ctx.for_light_subpaths()
         per_path = self._capacity
         while True:
-            store = LightVertexStore(n, n * per_path[0], n * per_path[1],
-                                     zeroed=self.timings is not None)
+            store = LightVertexStore(n, n * per_path[0] if ctx.strategies.stores_vertices else 1,
+                                     n * per_path[1], zeroed=self.timings is not None)
             light_rays = trace_light_subpaths(light, store)
             dr.eval(light_rays, store.vertices.items, store.splats.items, store.first,
                     *([] if ctx.moments is None or not ctx.moments.record
@@ -729,6 +761,10 @@ class Renderer:
                 break
             per_path[0] = max(per_path[0], -(-store.vertices.size() * 5 // (4 * n)))
             per_path[1] = max(per_path[1], -(-store.splats.size() * 5 // (4 * n)))
+            # The larger pools replace these, not join them (Veach's room: 1.5x the peak).
+            store = light_rays = None
+            dr.flush_malloc_cache()
+            self._outgrown = True       # the passes after this one: planned anew
             light.light_sampler = self._sampler(index, 1, n, spp)
         stored = store.vertices.size()
         if ctx.budget.connects:     # a budget without connections stores none

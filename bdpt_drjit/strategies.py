@@ -110,6 +110,13 @@ class StrategySet:
             return None
         return self.max_depth - (1 if self.light_image or self.merging else 2)
 
+    @property
+    def stores_vertices(self) -> bool:
+        """Does some strategy store a light vertex (``stores``)?  Else no pool for them."""
+        if self.technique is not None:
+            return self.technique[0] >= 2 and self.technique[1] >= 2
+        return self.merging or (self.subset == "all" and self.connects)
+
     def stores(self, s):
         """Must light vertex y_{s-1} be stored: is some (s, t >= 2) on?"""
         if self.technique is not None:

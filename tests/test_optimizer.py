@@ -94,10 +94,11 @@ def test_path_tracing_runs_in_as_few_passes_as_its_lanes_allow():
     """Where the pilot chooses path tracing, the passes after its round are sized for
     Mitsuba's path (backend.path_pass_lanes), not for BDPT's wavefront: a pass's fixed
     cost made the default 13x path's time on a GPU at 1 spp per pass.  The film still
-    gets every sample asked for; a fixed budget keeps its plan."""
+    gets every sample asked for; a fixed budget keeps its plan, sized for the
+    engine's own walk."""
     from bdpt_drjit import backend
     scene = mi.load_file(scene_path("glass-pane.xml"), resx=64, resy=64)
-    budget = 64 << 20        # BDPT's plan: 14 spp per pass; path's: 256
+    budget = 64 << 20        # BDPT's plan: 9 spp per pass; path's: 256
     r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=1024, seed=1, max_depth=6,
                                                   memory_budget=budget)
     bdpt_passes = len(r.plan)
@@ -112,7 +113,8 @@ def test_path_tracing_runs_in_as_few_passes_as_its_lanes_allow():
     fixed = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=1024, seed=1, max_depth=6,
                                                       memory_budget=budget, light_paths=0,
                                                       connections=0)
-    assert len(fixed.plan) == -(-1024 // 14)
+    own = fixed._lanes_for(fixed.budget) // fixed.pixels
+    assert len(fixed.plan) == -(-1024 // own) > len(rest)
 
 
 def test_media_keep_the_engine_path_tracer():

@@ -39,3 +39,66 @@ def test_a_light_pool_overflows_once_per_render(monkeypatch):
     scene = mi.load_file(str(SCENES / "stress" / "closed-box.xml"), max_depth="16")
     res = bdpt_drjit.render(scene, spp=5, samples_per_pass=3, seed=2, max_depth=16)
     assert res.passes == 2 and checked.count(True) == 1, checked
+
+
+def _pass_peaks(renderer) -> list:
+    """Each pass's peak memory (bytes) above what was held when it began."""
+    import mitsuba as mi
+    backend = dr.JitBackend.CUDA if mi.variant().startswith("cuda") else dr.JitBackend.LLVM
+    peaks = []
+    while not renderer.done:
+        dr.sync_thread()
+        dr.flush_malloc_cache()
+        dr.detail.malloc_clear_statistics()
+        start = dr.detail.malloc_watermark(backend)
+        renderer.run_pass()
+        dr.sync_thread()
+        peaks.append(dr.detail.malloc_watermark(backend) - start)
+    return peaks
+
+
+def test_passes_hold_to_the_memory_budget():
+    """Each pass of Veach's BDPT holds no more than ``memory_budget``, also where light
+    subpaths store more vertices than the pools start with: the pass that finds out
+    frees its first pools before it allocates larger ones (it holds those), and the
+    passes after it are sized for them.  In a closed box of albedo 0.9 (about 9 stored
+    vertices per subpath) the passes after the first held 1.8x the budget."""
+    import sys
+
+    import mitsuba as mi
+    from conftest import SCENES
+    render = sys.modules["bdpt_drjit.render"]
+    scene = mi.load_file(str(SCENES / "stress" / "closed-box.xml"), resx=64, resy=64)
+    budget = 16 << 20
+    r = render.Renderer(scene, spp=16, seed=2, max_depth=12, rr_depth=100, light_paths=1,
+                        connections="all", memory_budget=budget)
+    planned = r._lanes_for(r.budget)
+    peaks = _pass_peaks(r)
+    assert r._capacity[0] > render._VERTICES_PER_LANE       # the pools grew
+    # The first pass holds its larger pools (on the lanes planned with the smaller).
+    grown = budget * planned / r._lanes_for(r.budget)
+    assert peaks[0] <= grown and max(peaks[1:]) <= budget, \
+        ["%.1f MiB" % (p / 2 ** 20) for p in peaks + [grown]]
+
+
+def test_passes_are_sized_for_the_budget_chosen():
+    """A budget with more light subpaths per camera sample runs in smaller passes (and
+    holds to the memory budget); one with fewer in passes as large as Veach's BDPT's,
+    not larger (on the CPU a larger pass is slower: ``_lanes_for``).  light_paths=4
+    held 3x the plan's memory when every budget was planned as one light subpath per
+    lane."""
+    import sys
+
+    import mitsuba as mi
+    from conftest import SCENES
+    render = sys.modules["bdpt_drjit.render"]
+    scene = mi.load_file(str(SCENES / "cornell-box.xml"), resx=64, resy=64)
+
+    def lanes(**budget):
+        r = render.Renderer(scene, spp=64, seed=2, memory_budget=32 << 20, **budget)
+        return max(n * spp for _, n, spp in r.plan), r
+    veach, _ = lanes(light_paths=1, connections="all")
+    quarter, _ = lanes(light_paths=0.25, connections=0)
+    four, r = lanes(light_paths=4, connections=0)
+    assert four < veach == quarter
+    assert max(_pass_peaks(r)) <= 32 << 20
