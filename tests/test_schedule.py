@@ -43,18 +43,8 @@ def test_a_light_pool_overflows_once_per_render(monkeypatch):
 
 def _pass_peaks(renderer) -> list:
     """Each pass's peak memory (bytes) above what was held when it began."""
-    import mitsuba as mi
-    backend = dr.JitBackend.CUDA if mi.variant().startswith("cuda") else dr.JitBackend.LLVM
-    peaks = []
-    while not renderer.done:
-        dr.sync_thread()
-        dr.flush_malloc_cache()
-        dr.detail.malloc_clear_statistics()
-        start = dr.detail.malloc_watermark(backend)
-        renderer.run_pass()
-        dr.sync_thread()
-        peaks.append(dr.detail.malloc_watermark(backend) - start)
-    return peaks
+    from benchmarks.memory import pass_peaks
+    return [peak for _, peak in pass_peaks(renderer)]
 
 
 def test_passes_hold_to_the_memory_budget():
