@@ -19,7 +19,7 @@ fi
 export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb} PYTHONUNBUFFERED=1
 PY=${PY:-python3}
 RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}
-STEPS=${STEPS:-calibrate tests passes breakdown efficiency profile throughput}
+STEPS=${STEPS:-calibrate tests passes breakdown efficiency profile throughput memory small}
 EXT=${BDPT_SHARED:-../shared}/scenes/external
 mkdir -p "$OUT"
 step() {   # step NAME SECONDS COMMAND...: run with a time limit, log, report
@@ -62,3 +62,5 @@ step breakdown 40 breakdown
 step tests 160 $PY -m pytest -q -p no:cacheprovider -n "${JOBS:-8}" --ignore tests/test_cluster.py \
     -k \'not spectral_and_mono and not variant_switch and not specfilm\'
 step efficiency 110 $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3
+step memory 60 $PY -m benchmarks.memory --res "$RES" --mib 8192 --budget auto
+step small 120 $PY -m benchmarks.small --seeds 8

@@ -7,7 +7,7 @@ budget and per camera lane.
 
 Peak memory: Dr.Jit's ``malloc_watermark`` from the pass's start, the allocator's cache
 flushed before (the watermark counts cached blocks too), less what was held at the
-start (the film, the scene's arrays).  ``--budget ""``: the default (auto) budget.
+start (the film, the scene's arrays).  ``--budget auto``: the default budget.
 """
 from __future__ import annotations
 
@@ -47,11 +47,11 @@ def main(argv=None) -> None:
     ap.add_argument("--max-depth", type=int, default=8)
     ap.add_argument("--mib", type=int, default=256, help="memory_budget in MiB (default 256)")
     ap.add_argument("--budget", default="light_paths=1 connections=all",
-                    help="a fixed budget (default: Veach's BDPT; \"\": auto)")
+                    help="a fixed budget (default: Veach's BDPT), or auto")
     a = ap.parse_args(argv)
     from bdpt_drjit.render import Renderer
     scene = mi.load_file(str(a.scene), resx=a.res, resy=a.res, max_depth=a.max_depth)
-    budget = dict(kv.split("=") for kv in a.budget.split())
+    budget = {} if a.budget == "auto" else dict(kv.split("=") for kv in a.budget.split())
     r = Renderer(scene, spp=a.spp, seed=1, max_depth=a.max_depth,
                  memory_budget=a.mib << 20, **budget)
     peaks = pass_peaks(r)
