@@ -92,10 +92,12 @@ class Pool:
         self.items = empty(kind, self.capacity, zeroed)
         self.count = dr.zeros(mi.UInt32, 1)
         self._capacity = dr.opaque(mi.UInt32, self.capacity)
+        self._size = None               # the count, once read (a read is a sync)
 
     def append(self, value, active) -> mi.UInt32:
         """Append ``value`` where ``active``; returns each lane's index, NONE where
         nothing was written."""
+        self._size = None
         idx = dr.scatter_inc(self.count, mi.UInt32(0), active)
         if not dr.flag(dr.JitFlag.SymbolicScope):
             # An evaluated (wavefront) loop: the counter's result must be evaluated in
@@ -106,8 +108,11 @@ class Pool:
         return dr.select(ok, idx, NONE)
 
     def size(self) -> int:
-        """Appends requested (may exceed the capacity: see ``overflowed``)."""
-        return int(self.count[0])
+        """Appends requested (may exceed the capacity: see ``overflowed``), read from
+        the device once after the appends."""
+        if self._size is None:
+            self._size = int(self.count[0])
+        return self._size
 
     def overflowed(self) -> bool:
         return self.size() > self.capacity
