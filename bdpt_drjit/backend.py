@@ -4,7 +4,7 @@ the lanes of a pass of Mitsuba's ``path``.
 A pass's fixed cost (tracing its kernels from Python, host syncs) is a few ms on the
 CPU but 25-40 ms on a GPU host, where its kernels take 4-35 ns per lane: there passes
 must be large.  The default memory budget is therefore 2 GiB on the CPU and a quarter
-of the GPU's memory (2-8 GiB) under CUDA, and a pass of path tracing (the pilot's
+of the GPU's memory (2-12 GiB) under CUDA, and a pass of path tracing (the pilot's
 choice where light paths do not pay) takes up to 2^24 lanes there.  Sizes follow the
 device, not timings, so a seed still fixes the image on a given machine.
 """
@@ -16,9 +16,10 @@ import functools
 import mitsuba as mi
 
 CPU_MEMORY_BUDGET = 2 * 1024 ** 3
-# Under CUDA: a quarter of the GPU's memory, between these.  Past ~8M lanes (8 GiB at
-# ~1.1 KB per lane) a pass's fixed cost is under a tenth of its time.
-GPU_MEMORY_BUDGET = (CPU_MEMORY_BUDGET, 8 * 1024 ** 3)
+# Under CUDA: a quarter of the GPU's memory, between these.  Past ~8M lanes a pass's
+# fixed cost is under a tenth of its time: 12 GiB at Veach's BDPT's planned 1.6 KB per
+# lane (render._lanes_for; measured on an H100 at 8 GiB when passes were planned at 1.1).
+GPU_MEMORY_BUDGET = (CPU_MEMORY_BUDGET, 12 * 1024 ** 3)
 # Lanes of a pass of Mitsuba's path after the pilot chose path tracing, at most: on the
 # CPU about what a BDPT pass takes; on a GPU 16 spp of a 1024x1024 film.
 PATH_PASS_LANES = {"llvm": 1 << 21, "cuda": 1 << 24}

@@ -104,7 +104,7 @@ PARAMS = (
           "a pass fits ``memory_budget``.", minimum=0),
     Param("memory_budget", int, 0, "Bytes a pass may use for its wavefront state and "
           "stored light vertices (at least 1 MiB); 0 = auto: 2 GiB on the CPU, a quarter "
-          "of the GPU's memory (2-8 GiB) under CUDA, where a pass's fixed cost asks for "
+          "of the GPU's memory (2-12 GiB) under CUDA, where a pass's fixed cost asks for "
           "large passes (backend.py).", minimum=0),
 )
 PARAM = {p.name: p for p in PARAMS}

@@ -82,7 +82,7 @@ def test_bad_settings(box):
 
 def test_memory_budget_auto_follows_the_backend(box, monkeypatch):
     """memory_budget=0 (the default) is 2 GiB on the CPU and a quarter of the GPU's
-    memory under CUDA, from 2 to 8 GiB; a budget under 1 MiB is refused."""
+    memory under CUDA, from 2 to 12 GiB; a budget under 1 MiB is refused."""
     from bdpt_drjit import backend
     assert bdpt_drjit.Renderer(box, spp=1).memory_budget == backend.default_memory_budget()
     assert bdpt_drjit.Renderer(box, spp=1, memory_budget=1 << 20).memory_budget == 1 << 20
@@ -91,7 +91,7 @@ def test_memory_budget_auto_follows_the_backend(box, monkeypatch):
     monkeypatch.setattr(backend, "is_cuda", lambda: False)
     assert backend.default_memory_budget() == 2 << 30
     monkeypatch.setattr(backend, "is_cuda", lambda: True)
-    for total, expected in [(80 << 30, 8 << 30), (24 << 30, 6 << 30), (4 << 30, 2 << 30),
+    for total, expected in [(80 << 30, 12 << 30), (24 << 30, 6 << 30), (4 << 30, 2 << 30),
                             (0, 2 << 30)]:
         monkeypatch.setattr(backend, "gpu_memory", lambda: total)
         assert backend.default_memory_budget() == expected
