@@ -439,11 +439,11 @@ class Renderer:
         return float(np.mean(etas)) if etas else 0.0
 
     def _plan_rounds(self, done: int) -> None:
-        """Re-decisions (optimizer.Pilot.redecide) after pass ``done``: the first pass of the plan that
-        ends at or after 4, 16 and 64 times the pilot's spp (the last pass excepted)
-        records moments, on the first sample of every other pixel, with the balance
-        heuristic; the decision after it holds until the next.  The plan stays as it
-        is: passes of other sizes to end exactly there cost more than they gave (each
+        """Re-decisions (optimizer.Pilot.redecide) after pass ``done``: the first pass
+        of the plan that ends at or after 4, 16 and 64 times the pilot's spp (the last
+        pass excepted) records moments, on the first sample of every other pixel, with
+        the balance heuristic; the decision after it holds until the next.  No pass is
+        split to end exactly there: passes of other sizes cost more than they gave (each
         new size allocates its buffers anew: on Veach's bidirectional room, 128x72, 256
         spp, 8.0 s against 6.75 s), and a moment pass costs 4-20% more than a plain
         one.  Not where the pilot chose path tracing (its samples give no other
