@@ -35,9 +35,9 @@ that reference, of a long SmallVCM ``bpt`` and of this project's ``bdpt`` (REF_S
 are printed first (``--check``).
 
 Equal time: per run, SmallVCM ``vcm`` and ``bpt`` with ``-t CPU`` (``--cpu-seconds``,
-default 20: about 10 s wall on 2 cores) and this project's ``vcm`` (merging=True, budgets
-auto) and default ``bdpt`` at SPP samples per pixel (chosen after a warm-up so that a
-render takes about as long as SmallVCM's wall time), in turn, the order rotating per run.
+default 20: about 10 s wall on 2 idle cores) and this project's ``vcm`` (merging=True,
+budgets auto) and default ``bdpt`` at SPP samples per pixel (``--spp``, or chosen after a
+warm-up so that a render takes as many CPU seconds), in turn, the order rotating per run.
 Each render is timed in wall-clock seconds (SmallVCM: around its process; ours: around
 ``bdpt_drjit.render`` and its image) and CPU seconds (rusage of the child / this process).
 Error at equal time = relMSE x seconds (relMSE: the suite's, common.rel_mse), medians over
@@ -159,8 +159,15 @@ def read_hdr(path) -> np.ndarray:
 
 
 # -- runs ----------------------------------------------------------------------------------
+# SmallVCM's radius: 0.003 x its scene's bounding-sphere radius (2.2166 in these boxes)
+SMALLVCM_RADIUS = 0.003 * 0.5 * float(np.linalg.norm(_CB.max(0) - _CB.min(0)))
 OURS = {"vcm": C.Method("vcm", "vcm (merging, budgets auto)", "bdpt", (("merging", True),)),
-        "bdpt": C.BDPT_AUTO}
+        "bdpt": C.BDPT_AUTO,
+        # SmallVCM's vcm in this engine: 1 light subpath per pixel, every connection,
+        # merging in every pass at SmallVCM's first radius (diagnostic, ``--fixed``)
+        "vcm-fixed": C.Method("vcm-fixed", "vcm, SmallVCM's budget and radius", "bdpt",
+                              (("merging", True), ("light_paths", 1), ("connections", "all"),
+                               ("radius", SMALLVCM_RADIUS)))}
 
 
 def _cpu_self() -> float:
@@ -216,21 +223,23 @@ def check_means(binary: str, name: str, ref: np.ndarray, scratch: Path, spp: int
 
 
 def equal_time(binary: str, name: str, ref: np.ndarray, scratch: Path, cpu_seconds: float, runs: int,
-               spp: dict | None = None) -> dict:
+               spp: dict | None = None, save: Path | None = None, fixed: bool = False) -> dict:
     scene = build_scene(name, tmp=scratch)
-    # warm-up: kernels, and the spp that takes SmallVCM's wall time
-    _, sv_wall, _ = run_smallvcm(binary, name, "vcm", cpu_seconds, 1, scratch / "warm.hdr")
+    # warm-up: kernels, and the spp whose CPU time is SmallVCM's (a line through the CPU
+    # seconds of 16 and 64 spp: the pilot's cost does not scale with spp)
     spp = dict(spp or {})
-    for key, m in OURS.items():
-        run_ours(m, scene, 8, 999)
+    ours = {k: m for k, m in OURS.items() if fixed or k != "vcm-fixed"}
+    for key, m in ours.items():
+        run_ours(m, scene, 16, 999)
         if key not in spp:
-            _, wall, _ = run_ours(m, scene, 16, 998)
-            spp[key] = max(1, int(round(16 * sv_wall / wall)))
-    C.log("%s: SmallVCM -t %g took %.1f s wall; spp %s" % (name, cpu_seconds, sv_wall, spp))
-    order = ["sv-vcm", "ours-vcm", "sv-bpt", "ours-bdpt"]
+            c16, c64 = run_ours(m, scene, 16, 998)[2], run_ours(m, scene, 64, 997)[2]
+            per = max((c64 - c16) / 48, 1e-6)
+            spp[key] = max(16, int(round(16 + (cpu_seconds - c16) / per)))
+    C.log("%s: spp %s for SmallVCM's -t %g" % (name, spp, cpu_seconds))
+    order = ["sv-vcm", "ours-vcm", "sv-bpt", "ours-bdpt"] + (["ours-vcm-fixed"] if fixed else [])
     rows = {k: [] for k in order}
     for r in range(runs):
-        for k in order[r % 4:] + order[:r % 4]:
+        for k in order[r % len(order):] + order[:r % len(order)]:
             if k.startswith("sv-"):
                 img, wall, cpu = run_smallvcm(binary, name, k[3:], cpu_seconds, 1000 * (r + 1),
                                               scratch / ("%s_%s.hdr" % (name, k)))
@@ -238,6 +247,8 @@ def equal_time(binary: str, name: str, ref: np.ndarray, scratch: Path, cpu_secon
                 img, wall, cpu = run_ours(OURS[k[5:]], scene, spp[k[5:]], 1000 * (r + 1))
             e = C.rel_mse(img, ref)
             rows[k].append((wall, cpu, e))
+            if save:
+                np.save(save / ("%s_%s_%d.npy" % (name, k, r)), img.astype(np.float32))
             C.log("  run %d %-9s %.2f s wall %.2f s cpu relMSE %.4e" % (r, k, wall, cpu, e))
     med = {k: {"wall": statistics.median(w for w, _, _ in v), "cpu": statistics.median(c for _, c, _ in v),
                "relmse": statistics.median(e for _, _, e in v),
@@ -260,7 +271,11 @@ def main(argv=None) -> None:
     ap.add_argument("--spp", help="ours' spp, e.g. vcm=64,bdpt=128 (default: SmallVCM's wall time)")
     ap.add_argument("--check", action="store_true", help="image means only")
     ap.add_argument("--check-spp", type=int, default=REF_SPP)
+    ap.add_argument("--no-check", action="store_true", help="equal time only")
     ap.add_argument("--out", default=str(C.RESULTS / "smallvcm.json"))
+    ap.add_argument("--save", help="a folder for every run's image (.npy)")
+    ap.add_argument("--fixed", action="store_true",
+                    help="also vcm-fixed: SmallVCM's budget and radius in this engine")
     a = ap.parse_args(argv)
     if not Path(a.binary).is_file():
         C.log("SmallVCM binary %s not found: nothing to compare (build it as the module "
@@ -271,9 +286,12 @@ def main(argv=None) -> None:
     out = {"machine": C.machine_info(), "binary": a.binary, "scenes": {}}
     for name in a.scenes.split(","):
         ref = reference(a.binary, name, C.RESULTS / "smallvcm-refs")
-        res = {"means": check_means(a.binary, name, ref, scratch, a.check_spp)}
+        res = {} if a.no_check else {"means": check_means(a.binary, name, ref, scratch, a.check_spp)}
         if not a.check:
-            res.update(equal_time(a.binary, name, ref, scratch, a.cpu_seconds, a.runs, spp))
+            save = Path(a.save) if a.save else None
+            if save:
+                save.mkdir(parents=True, exist_ok=True)
+            res.update(equal_time(a.binary, name, ref, scratch, a.cpu_seconds, a.runs, spp, save, a.fixed))
             for k, v in res["medians"].items():
                 C.log("%s %-9s wall %.2f s cpu %.2f s relMSE %.4e  err x wall %.3f x SmallVCM vcm's, "
                       "x cpu %.3f" % (name, k, v["wall"], v["cpu"], v["relmse"], v["ratio_wall"], v["ratio_cpu"]))
