@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conftest import cli_env
@@ -132,3 +133,34 @@ def test_efficiency_against_path_without_a_reference():
     default, veach, path = [c.strip() for c in row[0].split("|")[3:6]]
     assert path.startswith("**1.00** (8 spp,")
     assert default.startswith("**") and "(4 spp," in default and "(2 spp," in veach
+
+
+def _smallvcm_rgbe(rgb: np.ndarray) -> bytes:
+    """RGBE bytes as SmallVCM's Framebuffer::SaveHDR writes them (frexp, truncation)."""
+    v = rgb.max(-1)
+    m, e = np.frexp(v)
+    scale = np.where(v >= 1e-32, m * 256.0 / np.where(v > 0, v, 1.0), 0.0)
+    out = np.zeros(rgb.shape[:-1] + (4,), np.uint8)
+    out[..., :3] = (rgb * scale[..., None]).astype(np.uint8)
+    out[..., 3] = np.where(v >= 1e-32, e + 128, 0)
+    h, w = rgb.shape[:2]
+    head = b"#?RADIANCE\n# SmallVCM\nFORMAT=32-bit_rle_rgbe\n\n-Y %d +X %d\n" % (h, w)
+    return head + out.tobytes()
+
+
+def test_smallvcm_hdr_reads_back_within_its_8_bit_mantissa(tmp_path):
+    from benchmarks.smallvcm import read_hdr
+    rgb = np.random.default_rng(3).lognormal(0.0, 2.0, (5, 7, 3))
+    rgb[0, 0] = 0.0                                  # black pixels stay black
+    path = tmp_path / "x.hdr"
+    path.write_bytes(_smallvcm_rgbe(rgb))
+    back = read_hdr(path)
+    assert back.shape == (5, 7, 3) and np.all(back[0, 0] == 0.0)
+    # a channel is kept to 1/256 of its pixel's largest, rows top-down as written
+    assert np.all(np.abs(back - rgb) <= rgb.max(-1, keepdims=True) / 256.0)
+
+
+def test_smallvcm_benchmark_skips_without_its_binary(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "benchmarks.smallvcm", str(tmp_path / "none")],
+                       cwd=str(ROOT), capture_output=True, text=True, timeout=300, env=cli_env())
+    assert r.returncode == 0 and "not found" in r.stdout
