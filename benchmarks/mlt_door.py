@@ -23,7 +23,7 @@ import numpy as np
 
 import bdpt_drjit  # noqa: F401
 import mitsuba as mi
-from bdpt_drjit import mlt
+from bdpt_drjit import mlt, mmlt
 from bdpt_drjit.render import Renderer
 
 
@@ -39,10 +39,10 @@ def timed_bdpt(scene, seconds, seed, **settings):
     return _lum(res.image), res.time, res.spp
 
 
-def timed_mlt(scene, seconds, seed, mis=True, chains=0, bootstrap=0, **params):
+def timed_mlt(scene, seconds, seed, mis=True, chains=0, bootstrap=0, renderer=None, **params):
     kw = dict(max_depth=8, mutations_per_pixel=1 << 16, chains=chains, large_step_mis=mis,
               bootstrap_samples=bootstrap)
-    r = mlt.MLTRenderer(scene, seed=seed, **{**kw, **params})
+    r = (renderer or mlt.MLTRenderer)(scene, seed=seed, **{**kw, **params})
     while not r.done and (r.iterations_done == 0 or r.time < seconds):
         r.run_iteration()           # at least one iteration, as the CLI's --time
     res = r.result()
@@ -107,6 +107,8 @@ def main(argv=None):
         args.chains, args.bootstrap = chains, boot
     methods = {"pssmlt": lambda s: timed_mlt(scene, args.seconds, s, not args.no_mis,
                                              args.chains, args.bootstrap),
+               "mlt": lambda s: timed_mlt(scene, args.seconds, s, not args.no_mis, args.chains,
+                                          args.bootstrap, mmlt.MMLTRenderer),
                "bdpt (auto)": lambda s: timed_bdpt(scene, args.seconds, s),
                "bdpt (Veach)": lambda s: timed_bdpt(scene, args.seconds, s, light_paths=1,
                                                     connections="all"),
@@ -115,8 +117,10 @@ def main(argv=None):
     for extra in args.mlt:
         params = {k: float(v) if "." in v else int(v)
                   for k, v in (kv.split("=") for kv in extra.split(","))}
-        methods["pssmlt[%s]" % extra] = (lambda p: lambda s: timed_mlt(
-            scene, args.seconds, s, not args.no_mis, **p))(params)
+        kind = params.pop("mmlt", 0)
+        methods["%s[%s]" % ("mlt" if kind else "pssmlt", extra)] = (lambda p, r: lambda s: timed_mlt(
+            scene, args.seconds, s, not args.no_mis, renderer=r, **p))(
+                params, mmlt.MMLTRenderer if kind else None)
     errors = {m: [] for m in methods}
     mse = {m: [] for m in methods}
     for run in range(args.runs):
