@@ -186,7 +186,11 @@ def chains_for_bootstrap(planned: int, f: np.ndarray) -> int:
     then share theirs."""
     f = f.astype(np.float64)
     square = float(np.dot(f, f))
-    ess = float(f.sum()) ** 2 / square if square > 0.0 else 0.0
+    return chains_for_ess(planned, float(f.sum()) ** 2 / square if square > 0.0 else 0.0)
+
+
+def chains_for_ess(planned: int, ess: float) -> int:
+    """``chains_for_bootstrap`` of an effective sample size ``ess``."""
     cap = int(ESS_CHAINS * ess)
     cap = 1 << (cap.bit_length() - 1) if cap > 0 else 0
     return min(planned, max(MIN_CHAINS, cap))

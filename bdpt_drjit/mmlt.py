@@ -45,7 +45,7 @@ import mitsuba as mi
 import numpy as np
 
 from . import pss
-from .mlt import BOOTSTRAP_LANES, Chains, Evaluation, MLTRenderer, chains_for_bootstrap
+from .mlt import BOOTSTRAP_LANES, Chains, Evaluation, MLTRenderer, chains_for_ess
 from .optimizer import luminance
 
 
@@ -182,21 +182,25 @@ class MMLTRenderer(MLTRenderer):
         if self.emitters.count == 0:            # black (support.check warned)
             return 0.0, None
         keys = self._stream_keys(0xB0)
-        f_np, self.b_depths = self._bootstrap_targets(keys, self.bootstrap_samples)
+        f_np, self.b_depths, square = self._bootstrap_targets(keys, self.bootstrap_samples)
         b = float(self.b_depths.sum())
         if b <= 0.0:
             return 0.0, None
-        if self.automatic_chains:
-            self.chains = chains_for_bootstrap(self.chains, f_np)
+        if self.automatic_chains:       # the effective sample size of the cells (k, s, u)
+            ess = (b * self.bootstrap_samples) ** 2 / square if square > 0.0 else 0.0
+            self.chains = chains_for_ess(self.chains, ess)
             self.iterations = max(1, round(self.mutations / self.chains))
         return b, self._start(keys, self._resample(f_np))
 
     def _bootstrap_targets(self, keys, count: int):
-        """f of full BDPT samples 0 .. count - 1 (every coordinate hashed), and the
-        mean per path length of their strategies' luminances, b_k."""
+        """f of full BDPT samples 0 .. count - 1 (every coordinate hashed), the
+        mean per path length of their strategies' luminances, b_k, and the sum of
+        their squares (the start states are cells (k, s) of samples: their effective
+        sample size (sum L)^2 / sum L^2 is at least that of f, whose cross terms
+        it lacks)."""
         self.strategies.set_lanes(None, None)
         depths = self.settings.max_depth
-        f_all, sums = [], np.zeros(depths)
+        f_all, sums, square = [], np.zeros(depths), 0.0
         batch = max(self.chains, BOOTSTRAP_LANES)
         k_of, _ = cell_table(depths)
         for start in range(0, count, batch):
@@ -207,11 +211,12 @@ class MMLTRenderer(MLTRenderer):
             per_cell = self.images.values.numpy().reshape(n, -1).astype(np.float64)
             per_cell[~np.isfinite(per_cell)] = 0.0
             sums += np.bincount(k_of - 1, weights=per_cell.sum(axis=0), minlength=depths)
+            square += float(np.sum(per_cell * per_cell))
             f_all.append(ev.f.numpy())
         self.images = None
         f_np = np.concatenate(f_all).astype(np.float64)
         f_np[~np.isfinite(f_np)] = 0.0
-        return f_np, sums / count
+        return f_np, sums / count, square
 
     def _start(self, keys, pick: mi.UInt32) -> MultiplexedChains:
         """Each chain's first state: the picked bootstrap sample's vectors, and a
