@@ -67,6 +67,11 @@ PER_DEPTH, CAMERA_START, LIGHT_START = 6, 6, 7
 # automatic.
 MLT_PARAMS = {"mutations_per_pixel": 0, "large_step_probability": 0.3,
               "bootstrap_samples": 0, "chains": 0, "large_step_mis": True}
+# MMLT's own (mmlt.py): what a chain fixes besides its path length: "strategy" (its
+# (s, t) from a stream of its own, Hachisuka 2014, pbrt) or "length" (every strategy
+# of its length).
+MMLT_PARAMS = {"multiplex": "strategy"}
+MULTIPLEX = ("strategy", "length")
 # Automatic chains and bootstrap (automatic_plan).  The image's error is mostly the
 # chains' start: a chain forgets its bootstrap state only through accepted large steps
 # (door-ajar.xml: large steps accepted 10%, small steps 51%; about one large step
@@ -198,20 +203,25 @@ def chains_for_ess(planned: int, ess: float) -> int:
 
 def mlt_settings(values: dict, name: str = "pssmlt") -> tuple[dict, dict]:
     """(MLT parameters, BDPT settings) from keyword values; refuses the BDPT
-    parameters that have no meaning for a chain's sample (budgets, techniques)."""
-    mlt, bdpt = dict(MLT_PARAMS), {}
+    parameters that have no meaning for a chain's sample (budgets, techniques).
+    ``name`` "mlt" (mmlt.py) also knows MMLT_PARAMS."""
+    known = dict(MLT_PARAMS, **(MMLT_PARAMS if name == "mlt" else {}))
+    mlt, bdpt = dict(known), {}
     for key, value in values.items():
-        if key in MLT_PARAMS and isinstance(MLT_PARAMS[key], bool) and isinstance(value, str):
+        if key in known and isinstance(known[key], bool) and isinstance(value, str):
             if value.lower() not in ("true", "false", "1", "0"):
                 raise ValueError("%s: %s must be true or false, got %r" % (name, key, value))
             mlt[key] = value.lower() in ("true", "1")
-        elif key in MLT_PARAMS:
-            mlt[key] = type(MLT_PARAMS[key])(value)
+        elif key in known:
+            mlt[key] = type(known[key])(value)
         elif key in ("maxDepth", "rrDepth", "hideEmitters", "lightImage") or key in BDPT_PARAMS:
             bdpt[key] = value
         else:
             raise ValueError("%s: unknown or unsupported parameter '%s' (known: %s)"
-                             % (name, key, ", ".join(list(MLT_PARAMS) + list(BDPT_PARAMS))))
+                             % (name, key, ", ".join(list(known) + list(BDPT_PARAMS))))
+    if mlt.get("multiplex", "strategy") not in MULTIPLEX:
+        raise ValueError("%s: multiplex must be one of %s, got %r"
+                         % (name, ", ".join(MULTIPLEX), mlt["multiplex"]))
     if min(mlt["mutations_per_pixel"], mlt["bootstrap_samples"], mlt["chains"]) < 0:
         raise ValueError("%s: mutations_per_pixel, bootstrap_samples and chains must be "
                          ">= 0 (0: the sample count; automatic)" % name)
@@ -243,6 +253,7 @@ class MLTRenderer:
     def __init__(self, scene: mi.Scene, sensor=0, seed: int = 0, **params):
         check_variant()
         mlt, bdpt = mlt_settings(params, self.name)
+        self.multiplex = mlt.get("multiplex")
         self.sensor = camera_stage.select_sensor(scene, sensor)
         self.camera = camera_stage.make_camera(self.sensor)
         self.scene, self.seed = scene, int(seed)

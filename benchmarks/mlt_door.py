@@ -1,13 +1,15 @@
-"""PSSMLT against BDPT at equal time on scenes/door-ajar.xml (issue 31).
+"""MMLT (``mlt``) and PSSMLT against BDPT at equal time on scenes/door-ajar.xml (issue 31).
 
     python -m benchmarks.mlt_door [--seconds 15] [--runs 4] [--res 64] [--ref-spp 4096]
     python -m benchmarks.mlt_door --scene scenes/cornell-box.xml --seconds 5 --plan-mpp 256
 
 Each round renders every method once for ``--seconds`` (interleaved, so that the
-machine's load falls on all alike): ``pssmlt`` (its bootstrap included in its time),
+machine's load falls on all alike): ``mlt`` (MMLT, mmlt.py) and ``pssmlt`` (their
+bootstraps included in their time),
 the default ``bdpt`` (auto budget, its pilot included), Veach's BDPT
 (light_paths=1 connections=all) and Mitsuba's ``path`` (in ``--methods``; renders of
-16 spp averaged); ``--mlt K=V,...`` adds pssmlt methods with other parameters.  Each stops after the pass or iteration that crosses
+16 spp averaged); ``--mlt K=V,...`` adds pssmlt methods with other parameters (MMLT ones with
+``mmlt=1`` among them; numeric values only).  Each stops after the pass or iteration that crosses
 the time, with an image normalized for what it did.  The reference is the mean of 8
 BDPT renders (``--ref-spp`` in all); its own noise is estimated from their spread and
 reported.  relMSE = mean over pixels of (I - R)^2 / (R^2 + eps), on the luminance,
@@ -77,7 +79,7 @@ def main(argv=None):
     ap.add_argument("--plan-mpp", type=int, default=0,
                     help="chains and bootstrap (where 0) as pssmlt chooses them for a render "
                          "of this many mutations per pixel (0: unbounded, the maximum)")
-    ap.add_argument("--methods", default="pssmlt,bdpt (auto),bdpt (Veach)")
+    ap.add_argument("--methods", default="mlt,pssmlt,bdpt (auto),bdpt (Veach)")
     ap.add_argument("--mlt", action="append", default=[], metavar="K=V,K=V",
                     help="a further pssmlt method with these parameters (repeatable), e.g. "
                          "chains=16384,bootstrap_samples=524288")

@@ -42,6 +42,10 @@ variants, heterogeneous media, ``mis=lafortune``, and the BDPT budget parameters
    * - chains
      - Markov chains (lanes); 0 = min(262144, max(4096, mutations / 16)), at
        most 2x the bootstrap's effective sample size (Default: 0)
+   * - multiplex
+     - What a chain fixes besides its path length: ``strategy`` (its (s, t), from a
+       stream of its own: Hachisuka 2014, pbrt) or ``length`` (every strategy of its
+       length, each with its MIS weight) (Default: strategy)
    * - max_depth
      - Longest path in edges, finite (Default: none: must be given)
    * - rr_depth, mis, light_image, hide_emitters

@@ -34,10 +34,12 @@ def _mmlt(scene, seed, **kw):
     return mmlt.render(scene, seed=seed, **params)
 
 
-def test_chain_target_is_its_strategy_of_the_full_sample():
+@pytest.mark.parametrize("multiplex", ["strategy", "length"])
+def test_chain_target_is_its_strategy_of_the_full_sample(multiplex):
+    """``length``: the target is every strategy of the chain's length."""
     scene = _box()
     r = mmlt.MMLTRenderer(scene, seed=2, mutations_per_pixel=4, bootstrap_samples=8192,
-                          chains=512, max_depth=5)
+                          chains=512, max_depth=5, multiplex=multiplex)
     x = r.state
     keys = r._stream_keys(0xB0)
     r.strategies.set_lanes(None, None)
@@ -51,6 +53,10 @@ def test_chain_target_is_its_strategy_of_the_full_sample():
     s = np.minimum((u * (k + 1)).astype(int), k)
     index = (k * (k + 1) - 2) // 2 + s
     expected = (k + 1) * cells[np.arange(r.chains), index]
+    if multiplex == "length":
+        k_of, _ = mmlt.cell_table(5)
+        expected = np.stack([cells[:, k_of == j].sum(axis=1) for j in range(1, 6)], 1)[
+            np.arange(r.chains), k - 1]
     assert (expected > 0).mean() > 0.95      # chains start on strategies that carry light
     assert np.allclose(chain.f.numpy(), expected, rtol=1e-3, atol=1e-6)
     assert np.allclose(full.f.numpy(), cells.sum(axis=1), rtol=1e-3, atol=1e-6)
@@ -72,13 +78,27 @@ def test_b_per_path_length_matches_bdpt():
     assert np.allclose(share, r.b_depths / r.b, atol=0.02), (share, r.b_depths / r.b)
 
 
-def test_image_matches_bdpt():
+@pytest.mark.parametrize("multiplex", ["strategy", "length"])
+def test_image_matches_bdpt(multiplex):
     """8 runs of 32 mutations per pixel against 8 BDPT renders of 32 spp."""
     scene = _box()
-    runs = [_mmlt(scene, seed).image for seed in range(RUNS)]
+    runs = [_mmlt(scene, seed, multiplex=multiplex).image for seed in range(RUNS)]
     refs = [bdpt_drjit.render(scene, spp=32, seed=100 + s, max_depth=5, light_paths=1,
                               connections="all").image for s in range(RUNS)]
-    assert_statistically_equal(runs, refs, blocks=4, what="mlt vs bdpt")
+    assert_statistically_equal(runs, refs, blocks=4, what="mlt (%s) vs bdpt" % multiplex)
+
+
+def test_automatic_chains_follow_the_cells_effective_size():
+    """Automatic chains: at most 2x the effective sample size of the bootstrap's cells
+    (k, s) of samples (mlt.chains_for_ess), which is at least that of the samples' f
+    (pssmlt's cap): door with a 0.02 gap, 16x16."""
+    from bdpt_drjit import mlt
+    scene = mi.load_file(str(SCENES / "door-ajar.xml"), resx=16, resy=16, gap_start=0.48)
+    a = mmlt.MMLTRenderer(scene, seed=1, mutations_per_pixel=4096, max_depth=6)
+    b = mlt.MLTRenderer(scene, seed=1, mutations_per_pixel=4096, max_depth=6)
+    assert a.bootstrap_samples == b.bootstrap_samples and a.b == pytest.approx(b.b, rel=1e-5)
+    assert b.chains <= a.chains < mlt.automatic_plan(4096 * 256)[0]
+    assert a.chains & (a.chains - 1) == 0
 
 
 @pytest.mark.parametrize("p_large, mis", [(0.0, True), (1.0, True), (0.3, False)])
@@ -167,6 +187,10 @@ def test_plugin_api_and_refusals():
         mmlt.MMLTRenderer(scene, max_depth=5, light_paths=1)
     with pytest.raises(ValueError, match="lafortune"):
         mmlt.MMLTRenderer(scene, max_depth=5, mis="lafortune")
+    with pytest.raises(ValueError, match="multiplex must be one of strategy, length"):
+        mmlt.MMLTRenderer(scene, max_depth=5, multiplex="technique")
+    with pytest.raises(ValueError, match="pssmlt: unknown or unsupported parameter 'multiplex'"):
+        bdpt_drjit.render(scene, spp=4, integrator="pssmlt", multiplex="length")
 
 
 def test_black_scene():
@@ -207,3 +231,31 @@ def test_homogeneous_fog_matches_bdpt():
     refs = [bdpt_drjit.render(scene, spp=32, seed=400 + s, max_depth=6, light_paths=1,
                               connections="all").image for s in range(6)]
     assert_statistically_equal(runs, refs, blocks=4, what="fog cube")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", __import__("test_mlt").STRESS)
+def test_stress_scenes_finite(name):
+    scene = mi.load_file(str(SCENES / "stress" / name), resx=16, resy=16)
+    res = mmlt.render(scene, seed=1, mutations_per_pixel=4, bootstrap_samples=4096, chains=256,
+                      max_depth=8)
+    assert np.isfinite(res.image).all() and (res.image >= 0).all()
+    assert np.isfinite(res.stats["b"])
+
+
+@pytest.mark.parametrize("camera", ["thin lens, crop", "orthographic"])
+def test_other_cameras_match_bdpt(camera):
+    """A thin lens with a crop window, and an orthographic camera (no light image: the
+    t = 1 strategies a chain may pick are off and weigh 0, as in BDPT's MIS)."""
+    from test_cameras import ORTHOGRAPHIC, cornell_thin_lens, with_sensor
+    if camera == "orthographic":
+        scene = with_sensor("cornell-box.xml", ORTHOGRAPHIC, 16)
+    else:
+        scene = cornell_thin_lens(0.5, res=20, film_xml=(
+            '<integer name="crop_offset_x" value="5"/><integer name="crop_offset_y" '
+            'value="3"/><integer name="crop_width" value="12"/><integer '
+            'name="crop_height" value="12"/>'))
+    runs = [_mmlt(scene, seed, max_depth=6).image for seed in range(6)]
+    refs = [bdpt_drjit.render(scene, spp=32, seed=500 + s, max_depth=6, light_paths=1,
+                              connections="all").image for s in range(6)]
+    assert_statistically_equal(runs, refs, blocks=4, what=camera)

@@ -200,6 +200,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--integrator", choices=("pssmlt", "mlt"), default="pssmlt",
                    help="pssmlt (default: every strategy per sample) or mlt (multiplexed: "
                    "one strategy per chain and path length; needs a finite --max-depth)")
+    t.add_argument("--multiplex", choices=("strategy", "length"),
+                   help="mlt: what a chain fixes besides its path length: its strategy "
+                   "(default, as pbrt) or all strategies of its length")
     t.add_argument("--mutations-per-pixel", "--spp", dest="mutations_per_pixel",
                    type=int_at_least(1), help="mean mutations per pixel (default: the "
                    "scene's sample count)")
