@@ -70,3 +70,9 @@ def integrator_class() -> type:
     if variant not in _CLASSES:
         _CLASSES[variant] = _make_class(mi.SamplingIntegrator, "mlt", __doc__, "MMLTIntegrator")
     return _CLASSES[variant]
+
+
+def register() -> None:
+    """Register ``mlt`` for the current variant."""
+    cls = integrator_class()
+    mi.register_integrator("mlt", lambda props: cls(props))

@@ -116,11 +116,9 @@ def _make_class(base: type, name: str = "pssmlt", doc: str = __doc__,
 
 
 def register() -> None:
-    """Register ``pssmlt`` and ``mlt`` (MMLT, integrators/mlt.py) for the current variant."""
-    from integrators.mlt import integrator_class
+    """Register ``pssmlt`` for the current variant (``mlt``: integrators/mlt.py)."""
     variant = mi.variant()
     if variant not in _CLASSES:
         _CLASSES[variant] = _make_class(mi.SamplingIntegrator)
-    cls, mmlt_cls = _CLASSES[variant], integrator_class()
+    cls = _CLASSES[variant]
     mi.register_integrator("pssmlt", lambda props: cls(props))
-    mi.register_integrator("mlt", lambda props: mmlt_cls(props))
