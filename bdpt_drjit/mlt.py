@@ -69,8 +69,12 @@ MLT_PARAMS = {"mutations_per_pixel": 0, "large_step_probability": 0.3,
               "bootstrap_samples": 0, "chains": 0, "large_step_mis": True}
 # MMLT's own (mmlt.py): what a chain fixes besides its path length: "strategy" (its
 # (s, t) from a stream of its own, Hachisuka 2014, pbrt) or "length" (every strategy
-# of its length).
-MMLT_PARAMS = {"multiplex": "strategy"}
+# of its length); and its default large-step probability, 0.1 (pbrt's is 0.3): an
+# MMLT large step is rarely accepted (door, 0.05 gap: 0.6%, PSSMLT's 10%), and at
+# equal time 0.1 gave 0.97x the default bdpt's relMSE on the door's 0.05 gap against
+# 0.3's 1.20x, 0.82x against 0.96x on its 0.01 gap (2 runs each), the box 23.9x
+# against 22.3x (benchmarks/RESULTS.md).
+MMLT_PARAMS = {"multiplex": "strategy", "large_step_probability": 0.1}
 MULTIPLEX = ("strategy", "length")
 # Automatic chains and bootstrap (automatic_plan).  The image's error is mostly the
 # chains' start: a chain forgets its bootstrap state only through accepted large steps

@@ -31,7 +31,8 @@ variants, heterogeneous media, ``mis=lafortune``, and the BDPT budget parameters
      - Mean mutations per pixel; ``spp`` of ``mi.render`` overrides it (Default: 0, the
        sensor's sample count)
    * - large_step_probability
-     - Probability of a large step (Default: 0.3; Mitsuba 0.6: ``pLarge``)
+     - Probability of a large step (Default: 0.1, where pbrt and ``pssmlt`` take 0.3:
+       MMLT's large steps are rarely accepted; Mitsuba 0.6: ``pLarge``)
    * - bootstrap_samples
      - Independent samples, over all path lengths, that estimate each b_k and seed the
        chains; 0 = max(100000, 8 x chains) (Default: 0; Mitsuba 0.6:

@@ -173,13 +173,14 @@ def test_plugin_api_and_refusals():
     """``mi.render`` with the ``mlt`` plugin and ``bdpt_drjit.render(integrator="mlt")``
     are the same render; an unbounded max_depth is refused with a message."""
     scene = _box()
-    integ = mi.load_dict({"type": "mlt", "max_depth": 5, "pLarge": 0.3,
+    integ = mi.load_dict({"type": "mlt", "max_depth": 5, "pLarge": 0.1,
                           "luminanceSamples": 4096, "chains": 256})
     assert "MMLT" in integ.to_string() and "multiplexed" in type(integ).__doc__.lower()
     a = mi.render(scene, integrator=integ, spp=8, seed=4).numpy()
     b = bdpt_drjit.render(scene, spp=8, seed=4, integrator="mlt", max_depth=5,
                           bootstrap_samples=4096, chains=256)
     assert b.stats["integrator"] == "mlt" and len(b.stats["b_depths"]) == 5
+    assert b.stats["large_step_probability"] == 0.1     # MMLT's default (pssmlt: 0.3)
     assert np.allclose(a, b.image, rtol=1e-4, atol=1e-6)
     with pytest.raises(ValueError, match="finite max_depth"):
         mmlt.MMLTRenderer(scene, max_depth=-1)

@@ -207,7 +207,7 @@ def build_parser() -> argparse.ArgumentParser:
                    type=int_at_least(1), help="mean mutations per pixel (default: the "
                    "scene's sample count)")
     t.add_argument("--large-step-probability", type=float, metavar="P",
-                   help="probability of a large step (default 0.3)")
+                   help="probability of a large step (default 0.3; mlt: 0.1)")
     t.add_argument("--bootstrap-samples", type=int_at_least(1), metavar="N",
                    help="independent samples estimating b and seeding the chains (default 0: "
                    "max(100000, 8 x chains))")
