@@ -23,14 +23,17 @@ DEFAULT_VARIANT = os.environ.get("BDPT_VARIANT") or "llvm_ad_rgb"
 
 
 def register() -> None:
-    """Register the ``bdpt`` and ``pssmlt`` integrators with Mitsuba for the current variant (done
-    on import and, through Mitsuba's variant callback, after every ``mi.set_variant``)."""
+    """Register the ``bdpt``, ``pssmlt`` and ``mlt`` integrators with Mitsuba for the current
+    variant (done on import and, through Mitsuba's variant callback, after every
+    ``mi.set_variant``)."""
     if mi.variant() is None:
         return
     from integrators.bdpt import register as _register
+    from integrators.mlt import register as _register_mmlt
     from integrators.pssmlt import register as _register_mlt
     _register()
     _register_mlt()
+    _register_mmlt()
 
 
 def _on_variant_change(old, new) -> None:

@@ -24,14 +24,16 @@ def render(scene, spp: int | None = None, seed: int = 0, sensor=0,
     ``cluster``: render the passes on Ray workers (``"local:N"``, ``"auto"`` or a Ray
     address; ``scene`` must then be a file path): the same estimator (cluster.py).
     ``integrator="pssmlt"``: Metropolis light transport over BDPT samples (mlt.py);
-    ``spp`` is then the mean mutations per pixel, and its own settings are
-    ``mlt.MLT_PARAMS`` with max_depth, rr_depth, mis, light_image, hide_emitters.
+    ``integrator="mlt"``: multiplexed MLT, a strategy per chain (mmlt.py, needs a
+    finite max_depth); ``spp`` is then the mean mutations per pixel, and their own
+    settings are ``mlt.MLT_PARAMS`` with max_depth, rr_depth, mis, light_image,
+    hide_emitters.
     """
     if integrator not in ("bdpt", "pssmlt", "mlt"):
-        raise ValueError("bdpt: unknown integrator %r (bdpt or pssmlt)" % (integrator,))
+        raise ValueError("bdpt: unknown integrator %r (bdpt, mlt or pssmlt)" % (integrator,))
     if integrator != "bdpt" and (cluster is not None or strategy_images):
-        raise ValueError("pssmlt: cluster rendering and strategy images are not supported "
-                         "(a chain's records mix every strategy)")
+        raise ValueError("%s: cluster rendering and strategy images are not supported "
+                         "(a chain's records are its own)" % integrator)
     if cluster is not None:
         from .cluster import render_on_cluster
         return render_on_cluster(scene, cluster, spp=spp, seed=seed, sensor=sensor,
@@ -42,10 +44,11 @@ def render(scene, spp: int | None = None, seed: int = 0, sensor=0,
     elif scene_params:
         raise ValueError("bdpt: scene_params apply to a scene file, not to a loaded mi.Scene")
     if integrator != "bdpt":
-        from . import mlt
+        from . import mlt, mmlt
         if spp:
             settings["mutations_per_pixel"] = spp
-        return mlt.render(scene, seed=seed, sensor=sensor, **settings)
+        return (mmlt if integrator == "mlt" else mlt).render(scene, seed=seed, sensor=sensor,
+                                                             **settings)
     r = Renderer(scene, sensor=sensor, spp=spp, seed=seed, strategy_images=strategy_images,
                  **settings)
     while not r.done:

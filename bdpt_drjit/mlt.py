@@ -67,6 +67,15 @@ PER_DEPTH, CAMERA_START, LIGHT_START = 6, 6, 7
 # automatic.
 MLT_PARAMS = {"mutations_per_pixel": 0, "large_step_probability": 0.3,
               "bootstrap_samples": 0, "chains": 0, "large_step_mis": True}
+# MMLT's own (mmlt.py): what a chain fixes besides its path length: "strategy" (its
+# (s, t) from a stream of its own, Hachisuka 2014, pbrt) or "length" (every strategy
+# of its length); and its default large-step probability, 0.1 (pbrt's is 0.3): an
+# MMLT large step is rarely accepted (door, 0.05 gap: 0.6%, PSSMLT's 10%), and at
+# equal time 0.1 gave 0.97x the default bdpt's relMSE on the door's 0.05 gap against
+# 0.3's 1.20x, 0.82x against 0.96x on its 0.01 gap (2 runs each), the box 23.9x
+# against 22.3x (benchmarks/RESULTS.md).
+MMLT_PARAMS = {"multiplex": "strategy", "large_step_probability": 0.1}
+MULTIPLEX = ("strategy", "length")
 # Automatic chains and bootstrap (automatic_plan).  The image's error is mostly the
 # chains' start: a chain forgets its bootstrap state only through accepted large steps
 # (door-ajar.xml: large steps accepted 10%, small steps 51%; about one large step
@@ -144,12 +153,17 @@ class Chains:
     camera: Records
     splats: Records
 
-    def accept(self, accepted: mi.Bool, camera_u, light_u, ev: Evaluation, dims) -> None:
-        """x <- y where ``accepted`` (per chain; masks, no per-lane branches)."""
-        for name, y, d in (("camera_u", camera_u, dims[0]), ("light_u", light_u, dims[1])):
-            element = dr.arange(mi.UInt32, dr.width(y))
-            take = dr.gather(mi.Bool, accepted, element // dr.opaque(mi.UInt32, d))
-            setattr(self, name, dr.select(take, y, getattr(self, name)))
+    def vectors(self) -> dict:
+        """The chain's primary sample vectors by field name (chains x D each)."""
+        return {"camera_u": self.camera_u, "light_u": self.light_u}
+
+    def accept(self, accepted: mi.Bool, y: dict, ev: Evaluation, dims: dict) -> None:
+        """x <- y where ``accepted`` (per chain; masks, no per-lane branches): ``y`` the
+        proposal's vectors (as ``vectors()``), ``dims`` their coordinates per chain."""
+        for name, vector in y.items():
+            element = dr.arange(mi.UInt32, dr.width(vector))
+            take = dr.gather(mi.Bool, accepted, element // dr.opaque(mi.UInt32, dims[name]))
+            setattr(self, name, dr.select(take, vector, getattr(self, name)))
         self.f = dr.select(accepted, ev.f, self.f)
         self.camera = Records(pos=dr.select(accepted, ev.camera.pos, self.camera.pos),
                               value=dr.select(accepted, ev.camera.value, self.camera.value),
@@ -157,7 +171,7 @@ class Chains:
         kept = _select_records(self.splats, ~dr.gather(mi.Bool, accepted, self.splats.lane))
         taken = _select_records(ev.splats, dr.gather(mi.Bool, accepted, ev.splats.lane))
         self.splats = _concat(kept, taken)
-        dr.eval(self.camera_u, self.light_u, self.f, self.camera, self.splats)
+        dr.eval(self.vectors(), self.f, self.camera, self.splats)
 
 
 def automatic_plan(mutations: int, chains: int = 0, bootstrap: int = 0) -> tuple[int, int]:
@@ -181,50 +195,59 @@ def chains_for_bootstrap(planned: int, f: np.ndarray) -> int:
     then share theirs."""
     f = f.astype(np.float64)
     square = float(np.dot(f, f))
-    ess = float(f.sum()) ** 2 / square if square > 0.0 else 0.0
+    return chains_for_ess(planned, float(f.sum()) ** 2 / square if square > 0.0 else 0.0)
+
+
+def chains_for_ess(planned: int, ess: float) -> int:
+    """``chains_for_bootstrap`` of an effective sample size ``ess``."""
     cap = int(ESS_CHAINS * ess)
     cap = 1 << (cap.bit_length() - 1) if cap > 0 else 0
     return min(planned, max(MIN_CHAINS, cap))
 
 
-def mlt_settings(values: dict) -> tuple[dict, dict]:
+def mlt_settings(values: dict, name: str = "pssmlt") -> tuple[dict, dict]:
     """(MLT parameters, BDPT settings) from keyword values; refuses the BDPT
-    parameters that have no meaning for a chain's sample (budgets, techniques)."""
-    mlt, bdpt = dict(MLT_PARAMS), {}
+    parameters that have no meaning for a chain's sample (budgets, techniques).
+    ``name`` "mlt" (mmlt.py) also knows MMLT_PARAMS."""
+    known = dict(MLT_PARAMS, **(MMLT_PARAMS if name == "mlt" else {}))
+    mlt, bdpt = dict(known), {}
     for key, value in values.items():
-        if key in MLT_PARAMS and isinstance(MLT_PARAMS[key], bool) and isinstance(value, str):
+        if key in known and isinstance(known[key], bool) and isinstance(value, str):
             if value.lower() not in ("true", "false", "1", "0"):
-                raise ValueError("pssmlt: %s must be true or false, got %r" % (key, value))
+                raise ValueError("%s: %s must be true or false, got %r" % (name, key, value))
             mlt[key] = value.lower() in ("true", "1")
-        elif key in MLT_PARAMS:
-            mlt[key] = type(MLT_PARAMS[key])(value)
+        elif key in known:
+            mlt[key] = type(known[key])(value)
         elif key in ("maxDepth", "rrDepth", "hideEmitters", "lightImage") or key in BDPT_PARAMS:
             bdpt[key] = value
         else:
-            raise ValueError("pssmlt: unknown or unsupported parameter '%s' (known: %s)"
-                             % (key, ", ".join(list(MLT_PARAMS) + list(BDPT_PARAMS))))
+            raise ValueError("%s: unknown or unsupported parameter '%s' (known: %s)"
+                             % (name, key, ", ".join(list(known) + list(BDPT_PARAMS))))
+    if mlt.get("multiplex", "strategy") not in MULTIPLEX:
+        raise ValueError("%s: multiplex must be one of %s, got %r"
+                         % (name, ", ".join(MULTIPLEX), mlt["multiplex"]))
     if min(mlt["mutations_per_pixel"], mlt["bootstrap_samples"], mlt["chains"]) < 0:
-        raise ValueError("pssmlt: mutations_per_pixel, bootstrap_samples and chains must be "
-                         ">= 0 (0: the sample count; automatic)")
+        raise ValueError("%s: mutations_per_pixel, bootstrap_samples and chains must be "
+                         ">= 0 (0: the sample count; automatic)" % name)
     if not 0.0 <= mlt["large_step_probability"] <= 1.0:
-        raise ValueError("pssmlt: large_step_probability must lie in [0, 1], got %g"
-                         % mlt["large_step_probability"])
+        raise ValueError("%s: large_step_probability must lie in [0, 1], got %g"
+                         % (name, mlt["large_step_probability"]))
     return mlt, bdpt
 
 
-def _refuse(scene: mi.Scene, media: Media, settings: Settings) -> None:
+def _refuse(scene: mi.Scene, media: Media, settings: Settings, name: str) -> None:
     """What PSSMLT cannot render here, refused before anything is rendered."""
     if mi.is_spectral or mi.is_monochromatic:
-        raise RuntimeError("pssmlt: RGB variants only (got %s): a chain's records carry no "
-                           "wavelengths" % mi.variant())
+        raise RuntimeError("%s: RGB variants only (got %s): a chain's records carry no "
+                           "wavelengths" % (name, mi.variant()))
     if settings.mis == "lafortune":
-        raise ValueError("pssmlt: mis='lafortune' is refused: its weights have no light "
-                         "image, use power or balance")
+        raise ValueError("%s: mis='lafortune' is refused: its weights have no light "
+                         "image, use power or balance" % name)
     if media.present and any(not m.is_homogeneous() for m in media.all):
         raise support.UnsupportedPluginError(
-            "pssmlt: heterogeneous media are refused: ratio tracking's transmittance is "
+            "%s: heterogeneous media are refused: ratio tracking's transmittance is "
             "keyed per pass, not by the primary sample, so f(u) would not be a function "
-            "of u; render them with bdpt")
+            "of u; render them with bdpt" % name)
 
 
 class MLTRenderer:
@@ -233,7 +256,8 @@ class MLTRenderer:
 
     def __init__(self, scene: mi.Scene, sensor=0, seed: int = 0, **params):
         check_variant()
-        mlt, bdpt = mlt_settings(params)
+        mlt, bdpt = mlt_settings(params, self.name)
+        self.multiplex = mlt.get("multiplex")
         self.sensor = camera_stage.select_sensor(scene, sensor)
         self.camera = camera_stage.make_camera(self.sensor)
         self.scene, self.seed = scene, int(seed)
@@ -241,7 +265,7 @@ class MLTRenderer:
         support.check(scene, self.sensor)
         self.emitters = Emitters(scene)
         self.media = Media(scene, self.sensor)
-        _refuse(scene, self.media, self.settings)
+        _refuse(scene, self.media, self.settings, self.name)
         self.strategies = StrategySet(self.settings, self.emitters.count > 0, BDPT,
                                       self.camera.light_image_possible)
         self.weights = Weights(self.settings.mis, self.strategies)
@@ -259,17 +283,25 @@ class MLTRenderer:
         self.iterations = max(1, round(self.mutations / self.chains))
         depths = STORED_DEPTHS if self.settings.max_depth < 0 else min(
             self.settings.max_depth, STORED_DEPTHS)
-        self.dims = (CAMERA_START + PER_DEPTH * depths, LIGHT_START + PER_DEPTH * depths)
+        self.dims = {"camera_u": CAMERA_START + PER_DEPTH * depths,
+                     "light_u": LIGHT_START + PER_DEPTH * depths}
         self._capacity = [4, 5]          # pool records per light subpath, raised on overflow
         self.iterations_done, self.time, self.rays = 0, 0.0, 0
         self.acceptance = []             # mean acceptance per iteration
         # sums of a and counts of proposals: small steps, large steps (no host sync)
         self._tally = dr.zeros(mi.Float, 4)
         self.start_states = 0            # distinct bootstrap samples the chains start on
+        self.images = None               # strategy records of an evaluation (mmlt.py)
+        self._configure()
         start = time.perf_counter()
         self.b, self.state = self.bootstrap()
         self.bootstrap_time = time.perf_counter() - start
         self.time += self.bootstrap_time
+
+    name = "pssmlt"
+
+    def _configure(self) -> None:
+        """Subclasses' settings before the bootstrap (mmlt.py)."""
 
     def _key(self, *values) -> mi.UInt32:
         return dr.opaque(mi.UInt32, _mix_seed(self.seed, *values))
@@ -287,7 +319,7 @@ class MLTRenderer:
             budget=BDPT, lane=dr.arange(mi.UInt32, lanes), time=rays.ray.time,
             wavelengths=rays.ray.wavelengths, camera_weight=rays.weight, light_count=lanes,
             pick_offset=dr.opaque(mi.Float, 0.0), noise_key=key, pixel=rays.pixel,
-            connection_scale=dr.opaque(mi.Float, 1.0))
+            connection_scale=dr.opaque(mi.Float, 1.0), images=self.images)
 
     def evaluate(self, lanes: int, samplers) -> Evaluation:
         """The BDPT sample of each lane's primary samples: ``samplers()`` makes a
@@ -313,6 +345,8 @@ class MLTRenderer:
         if count:
             s = gather(store.splats.items, dr.arange(mi.UInt32, count))
             splats = Records(pos=mi.Vector2f(s.pos), value=mi.Spectrum(s.value), lane=s.lane)
+            if self.images is not None:
+                self.images.add(s.lane, s.s, 1, splats.value)
         else:
             splats = Records(pos=dr.zeros(mi.Vector2f, 0), value=dr.zeros(mi.Spectrum, 0),
                              lane=dr.zeros(mi.UInt32, 0))
@@ -335,39 +369,58 @@ class MLTRenderer:
         sec. 11.3.1's start-up bias)."""
         if self.emitters.count == 0:            # black (support.check warned)
             return 0.0, None
-        keys = self._key(0xB0, 0), self._key(0xB0, 1)
-        f_all = []
-        batch = max(self.chains, BOOTSTRAP_LANES)
-        for start in range(0, self.bootstrap_samples, batch):
-            n = min(batch, self.bootstrap_samples - start)
-            ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, start)
-            ev = self.evaluate(n, lambda: (pss.PSSSampler.make(n, keys[0], ident),
-                                           pss.PSSSampler.make(n, keys[1], ident)))
-            self.rays += ev.rays
-            f_all.append(ev.f.numpy())
-        f_np = np.concatenate(f_all).astype(np.float64)
-        f_np[~np.isfinite(f_np)] = 0.0
+        keys = self._stream_keys(0xB0)
+        f_np = self._bootstrap_targets(keys, self.bootstrap_samples)
         b = float(f_np.mean())
         if b <= 0.0:
             return 0.0, None
         if self.automatic_chains:
             self.chains = chains_for_bootstrap(self.chains, f_np)
             self.iterations = max(1, round(self.mutations / self.chains))
-        dist = mi.DiscreteDistribution(mi.Float(f_np.astype(np.float32)))
+        pick = self._resample(f_np)
+        x = {name: pss.hashed_vectors(key, pick, self.dims[name])
+             for name, key in zip(self.dims, keys)}
+        dr.eval(x)
+        ev = self._evaluate_vectors(self.chains, keys, pick, x)
+        return b, Chains(f=ev.f, camera=ev.camera, splats=ev.splats, **x)
+
+    def _stream_keys(self, *values) -> tuple:
+        """One opaque key per stream (``dims``'s order)."""
+        return tuple(self._key(*values, i) for i in range(len(self.dims)))
+
+    def _bootstrap_targets(self, keys, count: int) -> np.ndarray:
+        """f of bootstrap samples 0 .. count - 1 (every coordinate hashed from its
+        stream's key and the sample's number), in batches of BOOTSTRAP_LANES lanes."""
+        f_all = []
+        batch = max(self.chains, BOOTSTRAP_LANES)
+        for start in range(0, count, batch):
+            n = min(batch, count - start)
+            ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, start)
+            ev = self._evaluate_vectors(n, keys, ident, {name: None for name in self.dims})
+            f_all.append(ev.f.numpy())
+        f_np = np.concatenate(f_all).astype(np.float64)
+        f_np[~np.isfinite(f_np)] = 0.0
+        return f_np
+
+    def _resample(self, weights: np.ndarray) -> mi.UInt32:
+        """``chains`` bootstrap samples drawn in proportion to ``weights``, stratified
+        (chain c takes the quantile (c + u_c) / chains: the picks ascend with c)."""
+        dist = mi.DiscreteDistribution(mi.Float(weights.astype(np.float32)))
         chain = dr.arange(mi.UInt32, self.chains)
         u = ((mi.Float(chain) + pss.hash_uniform(self._key(0xB1), chain, 0))
              / dr.opaque(mi.Float, self.chains))
         pick = dist.sample(dr.minimum(u, 0.99999994))
         self.start_states = len(np.unique(pick.numpy()))
-        camera_u = pss.hashed_vectors(keys[0], pick, self.dims[0])
-        light_u = pss.hashed_vectors(keys[1], pick, self.dims[1])
-        dr.eval(camera_u, light_u)
-        ev = self.evaluate(self.chains, lambda: (
-            pss.PSSSampler.make(self.chains, keys[0], pick, camera_u, self.dims[0]),
-            pss.PSSSampler.make(self.chains, keys[1], pick, light_u, self.dims[1])))
+        return pick
+
+    def _evaluate_vectors(self, lanes: int, keys, identity: mi.UInt32, x: dict) -> Evaluation:
+        """The BDPT sample of each lane's vectors ``x`` (None: hashed from ``keys``
+        and ``identity``); past a vector's coordinates, numbers hashed likewise."""
+        ev = self.evaluate(lanes, lambda: tuple(
+            pss.PSSSampler.make(lanes, key, identity, x[name], self.dims[name])
+            for name, key in zip(("camera_u", "light_u"), keys)))
         self.rays += ev.rays
-        return b, Chains(camera_u=camera_u, light_u=light_u, f=ev.f, camera=ev.camera,
-                         splats=ev.splats)
+        return ev
 
     # -- the chains ---------------------------------------------------------------------
     def run_iteration(self) -> None:
@@ -384,28 +437,33 @@ class MLTRenderer:
         self.time += time.perf_counter() - start
 
     def _iterate(self, i: int) -> None:
-        x, n, dims = self.state, self.chains, self.dims
+        x, n = self.state, self.chains
         chain = dr.arange(mi.UInt32, n)
         step_key = self._key(0x17, i)
         large = pss.hash_uniform(step_key, chain, 0) < dr.opaque(mi.Float, self.p_large)
-        camera_u = pss.propose(x.camera_u, dims[0], large, self._key(0x17, i, 0))
-        light_u = pss.propose(x.light_u, dims[1], large, self._key(0x17, i, 1))
-        dr.eval(camera_u, light_u)
-        tails = self._key(0x7A, i, 0), self._key(0x7A, i, 1)
-        ev = self.evaluate(n, lambda: (pss.PSSSampler.make(n, tails[0], chain, camera_u, dims[0]),
-                                       pss.PSSSampler.make(n, tails[1], chain, light_u, dims[1])))
-        self.rays += ev.rays
+        y = {name: pss.propose(vector, self.dims[name], large, self._key(0x17, i, k))
+             for k, (name, vector) in enumerate(x.vectors().items())}
+        dr.eval(y)
+        ev = self._evaluate_proposal(self._stream_keys(0x7A, i), chain, y)
         a = pss.acceptance(x.f, ev.f)
-        p_mis = self.p_large if self.large_step_mis else 0.0
-        wy, wx = pss.expected_value_weights(x.f, ev.f, a, dr.opaque(mi.Float, self.b), large,
-                                            dr.opaque(mi.Float, p_mis))
+        wy, wx = self._record_weights(x, ev, a, large)
         for records, w in ((ev.camera, wy), (ev.splats, wy), (x.camera, wx), (x.splats, wx)):
             self._put(records, w)
         accepted = pss.hash_uniform(step_key, chain, 1) < a
         mean_a = dr.mean(a)
         self._count(a, large)
-        x.accept(accepted, camera_u, light_u, ev, dims)
+        x.accept(accepted, y, ev, self.dims)
         self.acceptance.append(float(mean_a[0]))
+
+    def _evaluate_proposal(self, keys, identity: mi.UInt32, y: dict) -> Evaluation:
+        """The path samples of the chains' proposals ``y``."""
+        return self._evaluate_vectors(self.chains, keys, identity, y)
+
+    def _record_weights(self, x: Chains, ev: Evaluation, a: mi.Float, large: mi.Bool):
+        """The weights of the proposal's and the state's records (pss.py)."""
+        p_mis = self.p_large if self.large_step_mis else 0.0
+        return pss.expected_value_weights(x.f, ev.f, a, dr.opaque(mi.Float, self.b), large,
+                                          dr.opaque(mi.Float, p_mis))
 
     def _count(self, a: mi.Float, large: mi.Bool) -> None:
         """Adds the iteration's acceptance sums and proposal counts of small and large
@@ -443,7 +501,7 @@ class MLTRenderer:
         mpp = self.chains * self.iterations_done / self.pixels
         return RenderResult(image=tensor.numpy(), tensor=tensor, spp=int(mpp + 1e-9),
                             passes=self.iterations_done, time=self.time, rays=self.rays,
-                            stats={"pixels": self.pixels, "integrator": "pssmlt",
+                            stats={"pixels": self.pixels, "integrator": self.name,
                                    "b": self.b, "chains": self.chains,
                                    "iterations": self.iterations_done,
                                    "mutations_per_pixel": mpp,
@@ -456,7 +514,8 @@ class MLTRenderer:
                                    if self.acceptance else 0.0,
                                    "acceptance_small": self.step_acceptance()[0],
                                    "acceptance_large": self.step_acceptance()[1],
-                                   "budget": "pssmlt", "decision": "pssmlt (BDPT samples)"})
+                                   "budget": self.name,
+                                   "decision": "%s (BDPT samples)" % self.name})
 
 
 def render(scene, seed: int = 0, sensor=0, **params) -> RenderResult:

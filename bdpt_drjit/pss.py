@@ -155,7 +155,7 @@ def acceptance(fx: mi.Float, fy: mi.Float) -> mi.Float:
 
 
 def expected_value_weights(fx: mi.Float, fy: mi.Float, a: mi.Float, b, large=False,
-                           p_large=0.0):
+                           p_large=0.0, b_large=None):
     """The record weights of both states, b included: Veach's expected-value splatting
     (1997, sec. 11.3.3) records the proposal with a b / f(y) and the current state
     with (1 - a) b / f(x).  With ``p_large`` > 0, Kelemen's multiple importance
@@ -163,8 +163,14 @@ def expected_value_weights(fx: mi.Float, fy: mi.Float, a: mi.Float, b, large=Fal
     independent uniform sample, so each record is weighted by the balance heuristic
     over the chain's density f / b and the large steps' density p_large: the proposal
     with (a + [large]) / (f(y) / b + p_large), the state with (1 - a) / (f(x) / b +
-    p_large); dark regions then get the large steps' samples at their own rate."""
-    pb = b * p_large
+    p_large); dark regions then get the large steps' samples at their own rate.
+
+    MMLT (mmlt.py) passes per chain b = c_k = b_k N / n_k, the scale of a chain of
+    path length k (n_k of the N chains), and ``b_large`` = b_k: there the chains'
+    density is f / c_k and the large steps' p_large b_k / c_k (both per chain and
+    iteration, in the space of (k, u)), so the balance heuristic's denominator
+    becomes f + p_large b_k."""
+    pb = (b if b_large is None else b_large) * p_large
     on = dr.select(mi.Bool(large) & (mi.Float(p_large) > 0.0), 1.0, 0.0)
     dy, dx = fy + pb, fx + pb
     wy = dr.select(dy > 0.0, b * (a + on) / dr.maximum(dy, 1e-30), 0.0)

@@ -80,6 +80,12 @@ class StrategySet:
             out = out & c
         return out
 
+    def connects_at(self, t):
+        """Does camera vertex z_{t-1} connect to stored light vertices at all?  Every
+        depth here; per lane for MMLT's chains (mmlt.ChainStrategies), so that a lane
+        walks its list of stored vertices only at its own t."""
+        return True
+
     @property
     def use_mis(self) -> bool:
         """MIS weights apply unless one strategy per path length is left."""

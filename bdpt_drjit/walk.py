@@ -234,7 +234,8 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
             _add(ctx, state, 1, t, *connect.next_event(
                 ctx, state, v, u.endpoint, connectible & ctx.strategies.enabled(1, t)))
         if store is not None and ctx.strategies.connects:
-            state.radiance, rays = connect.stored_vertices(ctx, store, state, v, connectible)
+            state.radiance, rays = connect.stored_vertices(
+                ctx, store, state, v, connectible & ctx.strategies.connects_at(t))
             state.rays += rays
         if ctx.grid is not None:                # vertex merging (merge.py)
             merged = merge.merge_at(ctx, store, state, v, merge.can_merge(

@@ -1,13 +1,15 @@
-"""PSSMLT against BDPT at equal time on scenes/door-ajar.xml (issue 31).
+"""MMLT (``mlt``) and PSSMLT against BDPT at equal time on scenes/door-ajar.xml (issue 31).
 
     python -m benchmarks.mlt_door [--seconds 15] [--runs 4] [--res 64] [--ref-spp 4096]
     python -m benchmarks.mlt_door --scene scenes/cornell-box.xml --seconds 5 --plan-mpp 256
 
 Each round renders every method once for ``--seconds`` (interleaved, so that the
-machine's load falls on all alike): ``pssmlt`` (its bootstrap included in its time),
+machine's load falls on all alike): ``mlt`` (MMLT, mmlt.py) and ``pssmlt`` (their
+bootstraps included in their time),
 the default ``bdpt`` (auto budget, its pilot included), Veach's BDPT
 (light_paths=1 connections=all) and Mitsuba's ``path`` (in ``--methods``; renders of
-16 spp averaged); ``--mlt K=V,...`` adds pssmlt methods with other parameters.  Each stops after the pass or iteration that crosses
+16 spp averaged); ``--mlt K=V,...`` adds pssmlt methods with other parameters (MMLT ones with
+``mmlt=1`` among them; numeric values only).  Each stops after the pass or iteration that crosses
 the time, with an image normalized for what it did.  The reference is the mean of 8
 BDPT renders (``--ref-spp`` in all); its own noise is estimated from their spread and
 reported.  relMSE = mean over pixels of (I - R)^2 / (R^2 + eps), on the luminance,
@@ -23,7 +25,7 @@ import numpy as np
 
 import bdpt_drjit  # noqa: F401
 import mitsuba as mi
-from bdpt_drjit import mlt
+from bdpt_drjit import mlt, mmlt
 from bdpt_drjit.render import Renderer
 
 
@@ -39,10 +41,10 @@ def timed_bdpt(scene, seconds, seed, **settings):
     return _lum(res.image), res.time, res.spp
 
 
-def timed_mlt(scene, seconds, seed, mis=True, chains=0, bootstrap=0, **params):
+def timed_mlt(scene, seconds, seed, mis=True, chains=0, bootstrap=0, renderer=None, **params):
     kw = dict(max_depth=8, mutations_per_pixel=1 << 16, chains=chains, large_step_mis=mis,
               bootstrap_samples=bootstrap)
-    r = mlt.MLTRenderer(scene, seed=seed, **{**kw, **params})
+    r = (renderer or mlt.MLTRenderer)(scene, seed=seed, **{**kw, **params})
     while not r.done and (r.iterations_done == 0 or r.time < seconds):
         r.run_iteration()           # at least one iteration, as the CLI's --time
     res = r.result()
@@ -77,7 +79,7 @@ def main(argv=None):
     ap.add_argument("--plan-mpp", type=int, default=0,
                     help="chains and bootstrap (where 0) as pssmlt chooses them for a render "
                          "of this many mutations per pixel (0: unbounded, the maximum)")
-    ap.add_argument("--methods", default="pssmlt,bdpt (auto),bdpt (Veach)")
+    ap.add_argument("--methods", default="mlt,pssmlt,bdpt (auto),bdpt (Veach)")
     ap.add_argument("--mlt", action="append", default=[], metavar="K=V,K=V",
                     help="a further pssmlt method with these parameters (repeatable), e.g. "
                          "chains=16384,bootstrap_samples=524288")
@@ -107,6 +109,8 @@ def main(argv=None):
         args.chains, args.bootstrap = chains, boot
     methods = {"pssmlt": lambda s: timed_mlt(scene, args.seconds, s, not args.no_mis,
                                              args.chains, args.bootstrap),
+               "mlt": lambda s: timed_mlt(scene, args.seconds, s, not args.no_mis, args.chains,
+                                          args.bootstrap, mmlt.MMLTRenderer),
                "bdpt (auto)": lambda s: timed_bdpt(scene, args.seconds, s),
                "bdpt (Veach)": lambda s: timed_bdpt(scene, args.seconds, s, light_paths=1,
                                                     connections="all"),
@@ -115,8 +119,10 @@ def main(argv=None):
     for extra in args.mlt:
         params = {k: float(v) if "." in v else int(v)
                   for k, v in (kv.split("=") for kv in extra.split(","))}
-        methods["pssmlt[%s]" % extra] = (lambda p: lambda s: timed_mlt(
-            scene, args.seconds, s, not args.no_mis, **p))(params)
+        kind = params.pop("mmlt", 0)
+        methods["%s[%s]" % ("mlt" if kind else "pssmlt", extra)] = (lambda p, r: lambda s: timed_mlt(
+            scene, args.seconds, s, not args.no_mis, renderer=r, **p))(
+                params, mmlt.MMLTRenderer if kind else None)
     errors = {m: [] for m in methods}
     mse = {m: [] for m in methods}
     for run in range(args.runs):

@@ -63,56 +63,62 @@ LEGACY_REFUSED = {
 _CLASSES = {}
 
 
-def settings_from(props: mi.Properties) -> dict:
+def settings_from(props: mi.Properties, name: str = "pssmlt") -> dict:
     from bdpt_drjit import mlt
     out = {}
     for key in props.keys():
         if key in LEGACY_REFUSED:
-            raise ValueError("pssmlt: Mitsuba 0.6 parameter '%s' has no equivalent: %s"
-                             % (key, LEGACY_REFUSED[key]))
+            raise ValueError("%s: Mitsuba 0.6 parameter '%s' has no equivalent: %s"
+                             % (name, key, LEGACY_REFUSED[key]))
         out[LEGACY.get(key, key)] = props[key]
-    mlt.mlt_settings(out)                  # fail at load time on bad values
+    mlt.mlt_settings(out, name)            # fail at load time on bad values
     return out
 
 
-def _make_class(base: type) -> type:
-    class PSSMLTIntegrator(base):
+def _make_class(base: type, name: str = "pssmlt", doc: str = __doc__,
+                class_name: str = "PSSMLTIntegrator") -> type:
+    """The plugin class of ``name``: pssmlt (mlt.render) or mlt (mmlt.render)."""
+    def render_with(scene, **kwargs):
+        from bdpt_drjit import mlt, mmlt
+        return (mmlt.render if name == "mlt" else mlt.render)(scene, **kwargs)
+
+    class MLTIntegrator(base):
         def __init__(self, props: mi.Properties):
             super().__init__(props)
-            self.settings = settings_from(props)
+            self.settings = settings_from(props, name)
 
         def render(self, scene: mi.Scene, sensor=0, seed=0, spp: int = 0,
                    develop: bool = True, evaluate: bool = True) -> mi.TensorXf:
-            from bdpt_drjit import mlt
             if not develop:
-                raise ValueError("pssmlt: develop=False is not supported")
+                raise ValueError("%s: develop=False is not supported" % name)
             settings = dict(self.settings)
             if spp:
                 settings["mutations_per_pixel"] = spp
             with dr.suspend_grad():
-                return mlt.render(scene, seed=seed_value(seed), sensor=sensor, **settings).tensor
+                return render_with(scene, seed=seed_value(seed), sensor=sensor,
+                                   **settings).tensor
 
         def sample(self, *args, **kwargs):
-            raise NotImplementedError(NESTING_ERROR.replace("bdpt", "pssmlt"))
+            raise NotImplementedError(NESTING_ERROR.replace("bdpt", name))
 
         def render_forward(self, *args, **kwargs):
-            raise NotImplementedError(GRADIENT_ERROR.replace("bdpt", "pssmlt") % "forward")
+            raise NotImplementedError(GRADIENT_ERROR.replace("bdpt", name) % "forward")
 
         def render_backward(self, *args, **kwargs):
-            raise NotImplementedError(GRADIENT_ERROR.replace("bdpt", "pssmlt") % "backward")
+            raise NotImplementedError(GRADIENT_ERROR.replace("bdpt", name) % "backward")
 
         def to_string(self):
-            return "PSSMLTIntegrator[%s]" % ", ".join("%s=%r" % kv for kv in self.settings.items())
+            return "%s[%s]" % (class_name, ", ".join("%s=%r" % kv for kv in self.settings.items()))
 
-    PSSMLTIntegrator.__doc__ = __doc__
-    return PSSMLTIntegrator
+    MLTIntegrator.__doc__ = doc
+    MLTIntegrator.__name__ = MLTIntegrator.__qualname__ = class_name
+    return MLTIntegrator
 
 
 def register() -> None:
-    """Register ``pssmlt`` (and ``mlt``, the same) for the current variant."""
+    """Register ``pssmlt`` for the current variant (``mlt``: integrators/mlt.py)."""
     variant = mi.variant()
     if variant not in _CLASSES:
         _CLASSES[variant] = _make_class(mi.SamplingIntegrator)
     cls = _CLASSES[variant]
     mi.register_integrator("pssmlt", lambda props: cls(props))
-    mi.register_integrator("mlt", lambda props: cls(props))

@@ -190,17 +190,24 @@ def build_parser() -> argparse.ArgumentParser:
     add_scene_options(r)
     add_renderer_options(r)
 
-    t = sub.add_parser("mlt", help="render a scene with Metropolis light transport (pssmlt)",
-                       description="Render a Mitsuba XML scene with primary sample space "
-                       "MLT over BDPT samples (thousands of Markov chains as lanes). Writes "
-                       "OUT.exr and OUT.png. --time or Ctrl-C stop after the current "
+    t = sub.add_parser("mlt", help="render a scene with Metropolis light transport (mlt, pssmlt)",
+                       description="Render a Mitsuba XML scene with Metropolis light "
+                       "transport over BDPT samples (thousands of Markov chains as lanes): "
+                       "multiplexed MLT (a strategy per chain) or primary sample space MLT. "
+                       "Writes OUT.exr and OUT.png. --time or Ctrl-C stop after the current "
                        "iteration and write the image of the iterations done.")
     _add_scene_and_output(t)
+    t.add_argument("--integrator", choices=("pssmlt", "mlt"), default="pssmlt",
+                   help="pssmlt (default: every strategy per sample) or mlt (multiplexed: "
+                   "one strategy per chain and path length; needs a finite --max-depth)")
+    t.add_argument("--multiplex", choices=("strategy", "length"),
+                   help="mlt: what a chain fixes besides its path length: its strategy "
+                   "(default, as pbrt) or all strategies of its length")
     t.add_argument("--mutations-per-pixel", "--spp", dest="mutations_per_pixel",
                    type=int_at_least(1), help="mean mutations per pixel (default: the "
                    "scene's sample count)")
     t.add_argument("--large-step-probability", type=float, metavar="P",
-                   help="probability of a large step (default 0.3)")
+                   help="probability of a large step (default 0.3; mlt: 0.1)")
     t.add_argument("--bootstrap-samples", type=int_at_least(1), metavar="N",
                    help="independent samples estimating b and seeding the chains (default 0: "
                    "max(100000, 8 x chains))")

@@ -1,5 +1,6 @@
-"""``bdpt mlt``: render with PSSMLT over BDPT samples (bdpt_drjit/mlt.py), with
-progress per iteration, a time budget and stops.
+"""``bdpt mlt``: render with multiplexed MLT (``--integrator mlt``, bdpt_drjit/mmlt.py)
+or PSSMLT over BDPT samples (``pssmlt``, bdpt_drjit/mlt.py), with progress per
+iteration, a time budget and stops.
 
 An iteration mutates every chain once; the command stops after the iteration that
 crosses ``--time`` or after a Ctrl-C (SIGINT) or SIGTERM, and writes the image of
@@ -18,7 +19,7 @@ from .scene import check_sensor_index, integrator_defaults, load_scene, scene_pa
 
 _BDPT_KEYS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
 _MLT_KEYS = ("mutations_per_pixel", "large_step_probability", "bootstrap_samples", "chains",
-             "large_step_mis")
+             "large_step_mis", "multiplex")
 
 
 def _params(args, scene) -> dict:
@@ -58,21 +59,22 @@ def run(args, stop) -> int:
     scene = load_scene(mi, path, params)
     check_sensor_index(scene, args.sensor)
     settings = _params(args, scene)
-    from .. import mlt
+    from .. import mlt, mmlt
     from ..support import UnsupportedPluginError
     stop.check()
     t0 = time.perf_counter()
     try:
-        renderer = mlt.MLTRenderer(scene, sensor=args.sensor, seed=args.seed, **settings)
+        cls = mmlt.MMLTRenderer if args.integrator == "mlt" else mlt.MLTRenderer
+        renderer = cls(scene, sensor=args.sensor, seed=args.seed, **settings)
     except UnsupportedPluginError as e:
         raise CLIError("the scene uses an unsupported plugin: %s" % one_line(e)) from None
     except (ValueError, RuntimeError) as e:
         raise CLIError(one_line(e)) from None
     stop.check()
     if not args.quiet:
-        eprint("bdpt: pssmlt %s: %d chains x %d iterations, bootstrap of %d samples in %s, "
+        eprint("bdpt: %s %s: %d chains x %d iterations, bootstrap of %d samples in %s, "
                "b = %.6g, chains on %d distinct start states"
-               % (path.name, renderer.chains, renderer.iterations, renderer.bootstrap_samples,
+               % (renderer.name, path.name, renderer.chains, renderer.iterations, renderer.bootstrap_samples,
                   fmt_time(renderer.bootstrap_time), renderer.b, renderer.start_states))
     reason, last = None, 0.0
     while not renderer.done:
@@ -93,7 +95,7 @@ def run(args, stop) -> int:
         if reason:
             break
     from .. import __version__
-    meta = {"integrator": "pssmlt", "seed": args.seed, "bdpt_version": __version__,
+    meta = {"integrator": renderer.name, "seed": args.seed, "bdpt_version": __version__,
             "scene": str(path.resolve()), "variant": args.variant, "sensor": args.sensor,
             "scene_params": ",".join("%s=%s" % kv for kv in sorted(params.items())),
             **{k: v for k, v in settings.items() if k != "mutations_per_pixel"}}
@@ -102,8 +104,8 @@ def run(args, stop) -> int:
         eprint("bdpt: %s after %d of %d iterations; wrote their image"
                % ("interrupted" if reason == "interrupted" else "time budget used up",
                   res.passes, renderer.iterations))
-    print("bdpt: pssmlt %s, %.1f mutations per pixel in %s -> %s"
-          % ("x".join(str(int(x)) for x in renderer.sensor.film().crop_size()),
+    print("bdpt: %s %s, %.1f mutations per pixel in %s -> %s"
+          % (renderer.name, "x".join(str(int(x)) for x in renderer.sensor.film().crop_size()),
              res.stats["mutations_per_pixel"], fmt_time(time.perf_counter() - t0), out),
           flush=True)
     return 0 if stop.signal is None else exit_status(stop.signal)

@@ -1,0 +1,262 @@
+"""Multiplexed MLT over the wavefront BDPT (bdpt_drjit/mmlt.py, the ``mlt`` integrator).
+
+* A chain's sample is one strategy of the full BDPT sample: its target is k + 1 times
+  that strategy's MIS-weighted luminance in the full sample of the same numbers (the
+  walks stop early and connect once, and nothing else changes).
+* b_k, per path length, agrees with BDPT's image of that length.
+* The image agrees with BDPT's (Welch's t-test over independent runs, whole image and
+  4 x 4 blocks, as tests/test_mlt.py), and its luminance sum is b N at every
+  iteration.
+* The strategy stream keeps its target: chains over u_c on a piecewise constant target
+  with zero strategies (a 1D toy of the multiplexed space).
+* No kernel is compiled per iteration or per seed.
+* The plugin, the API and the CLI; refusals."""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+from scipy import stats
+
+import bdpt_drjit
+from bdpt_drjit import mmlt, pss
+from conftest import SCENES
+from stats import assert_statistically_equal
+from test_mlt import _box
+
+RUNS = 8
+
+
+def _mmlt(scene, seed, **kw):
+    params = dict(mutations_per_pixel=32, bootstrap_samples=16384, chains=1024, max_depth=5)
+    params.update(kw)
+    return mmlt.render(scene, seed=seed, **params)
+
+
+@pytest.mark.parametrize("multiplex", ["strategy", "length"])
+def test_chain_target_is_its_strategy_of_the_full_sample(multiplex):
+    """``length``: the target is every strategy of the chain's length."""
+    scene = _box()
+    r = mmlt.MMLTRenderer(scene, seed=2, mutations_per_pixel=4, bootstrap_samples=8192,
+                          chains=512, max_depth=5, multiplex=multiplex)
+    x = r.state
+    keys = r._stream_keys(0xB0)
+    r.strategies.set_lanes(None, None)
+    r.images = mmlt.StrategyLuminance(r.chains, 5)
+    pick = dr.arange(mi.UInt32, r.chains)           # the chains' vectors, any tails
+    full = r._evaluate_vectors(r.chains, keys, pick, x.vectors())
+    cells = r.images.values.numpy().reshape(r.chains, -1)
+    r.images = None
+    chain = r._evaluate_chains(keys, pick, x.vectors(), x.depth)
+    k, u = x.depth.numpy(), x.tech_u.numpy()
+    s = np.minimum((u * (k + 1)).astype(int), k)
+    index = (k * (k + 1) - 2) // 2 + s
+    expected = (k + 1) * cells[np.arange(r.chains), index]
+    if multiplex == "length":
+        k_of, _ = mmlt.cell_table(5)
+        expected = np.stack([cells[:, k_of == j].sum(axis=1) for j in range(1, 6)], 1)[
+            np.arange(r.chains), k - 1]
+    assert (expected > 0).mean() > 0.95      # chains start on strategies that carry light
+    assert np.allclose(chain.f.numpy(), expected, rtol=1e-3, atol=1e-6)
+    assert np.allclose(full.f.numpy(), cells.sum(axis=1), rtol=1e-3, atol=1e-6)
+    assert (np.diff(k) >= 0).all()           # lanes sorted by path length
+
+
+def test_b_per_path_length_matches_bdpt():
+    scene = _box()
+    r = mmlt.MMLTRenderer(scene, seed=5, mutations_per_pixel=16, bootstrap_samples=1 << 18,
+                          chains=4096, max_depth=4)
+    ref = bdpt_drjit.render(scene, spp=512, seed=7, max_depth=4, strategy_images=True)
+    per_k = [ref.length_images[k][..., :3].mean() if k in ref.length_images else
+             sum(v[..., :3].mean() for (s, t), v in ref.strategy_images.items()
+                 if s + t - 1 == k) for k in range(1, 5)]
+    assert np.allclose(r.b_depths, per_k, rtol=0.03), (r.b_depths, per_k)
+    assert r.chains_per_depth.sum() == r.chains == 4096
+    # chains over lengths in proportion to b_k (stratified resampling)
+    share = r.chains_per_depth / r.chains
+    assert np.allclose(share, r.b_depths / r.b, atol=0.02), (share, r.b_depths / r.b)
+
+
+@pytest.mark.parametrize("multiplex", ["strategy", "length"])
+def test_image_matches_bdpt(multiplex):
+    """8 runs of 32 mutations per pixel against 8 BDPT renders of 32 spp."""
+    scene = _box()
+    runs = [_mmlt(scene, seed, multiplex=multiplex).image for seed in range(RUNS)]
+    refs = [bdpt_drjit.render(scene, spp=32, seed=100 + s, max_depth=5, light_paths=1,
+                              connections="all").image for s in range(RUNS)]
+    assert_statistically_equal(runs, refs, blocks=4, what="mlt (%s) vs bdpt" % multiplex)
+
+
+def test_automatic_chains_follow_the_cells_effective_size():
+    """Automatic chains: at most 2x the effective sample size of the bootstrap's cells
+    (k, s) of samples (mlt.chains_for_ess), which is at least that of the samples' f
+    (pssmlt's cap): door with a 0.02 gap, 16x16."""
+    from bdpt_drjit import mlt
+    scene = mi.load_file(str(SCENES / "door-ajar.xml"), resx=16, resy=16, gap_start=0.48)
+    a = mmlt.MMLTRenderer(scene, seed=1, mutations_per_pixel=4096, max_depth=6)
+    b = mlt.MLTRenderer(scene, seed=1, mutations_per_pixel=4096, max_depth=6)
+    assert a.bootstrap_samples == b.bootstrap_samples and a.b == pytest.approx(b.b, rel=1e-5)
+    assert b.chains <= a.chains < mlt.automatic_plan(4096 * 256)[0]
+    assert a.chains & (a.chains - 1) == 0
+
+
+@pytest.mark.parametrize("p_large, mis", [(0.0, True), (1.0, True), (0.3, False)])
+def test_other_steps_match_bdpt(p_large, mis):
+    scene = _box()
+    runs = [_mmlt(scene, seed, large_step_probability=p_large, large_step_mis=mis).image
+            for seed in range(6)]
+    refs = [bdpt_drjit.render(scene, spp=32, seed=200 + s, max_depth=5, light_paths=1,
+                              connections="all").image for s in range(6)]
+    assert_statistically_equal(runs, refs, blocks=4, what="p_large %g, mis %s" % (p_large, mis))
+
+
+def test_image_sum_is_b_at_every_iteration():
+    """sum over chains of c_k = sum_k n_k b_k N / n_k = b N (without Kelemen's MIS)."""
+    scene = _box()
+    r = mmlt.MMLTRenderer(scene, seed=3, mutations_per_pixel=8, bootstrap_samples=8192,
+                          chains=512, max_depth=5, large_step_mis=False)
+    assert r.b > 0
+    while not r.done:
+        r.run_iteration()
+        img = r.tensor().numpy()
+        assert abs(img.mean() / r.b - 1.0) < 1e-4, (img.mean(), r.b)
+
+
+def test_strategy_stream_keeps_its_target():
+    """Chains on u_c alone, k = 4: target (k + 1) L_s with L = (1, 0, 3, 0.2, 0), started
+    by the bootstrap's rule (a strategy in proportion to L, u_c uniform in its
+    interval), 100 mixed steps: the strategies' histogram stays L / sum L (chi-square),
+    and no chain reaches a zero strategy."""
+    k, weights = 4, np.array([1.0, 0.0, 3.0, 0.2, 0.0])
+    n = 20000
+    rng = np.random.default_rng(4)
+    s0 = rng.choice(k + 1, size=n, p=weights / weights.sum())
+    u = mi.Float(((s0 + rng.random(n)) / (k + 1)).astype(np.float32))
+    table = mi.Float(weights.astype(np.float32) * (k + 1))
+    chain = dr.arange(mi.UInt32, n)
+    depth = dr.full(mi.UInt32, k, n)
+
+    def target(v):
+        s, _, _ = mmlt.techniques(depth, v)
+        return dr.gather(mi.Float, table, s)
+
+    fu = target(u)
+    for it in range(100):
+        key = dr.opaque(mi.UInt32, 0x5151 + it * 7919)
+        large = pss.hash_uniform(key, chain, 1 << 20) < dr.opaque(mi.Float, 0.3)
+        v = pss.propose(u, 1, large, key)
+        fv = target(v)
+        accept = pss.hash_uniform(key, chain, 1 << 21) < pss.acceptance(fu, fv)
+        u, fu = dr.select(accept, v, u), dr.select(accept, fv, fu)
+        dr.eval(u, fu)
+    s = np.minimum((u.numpy() * (k + 1)).astype(int), k)
+    counts = np.bincount(s, minlength=k + 1)
+    assert counts[1] == counts[4] == 0
+    on = weights > 0
+    p = stats.chisquare(counts[on], weights[on] / weights.sum() * n).pvalue
+    assert p > 1e-3, (counts, p)
+
+
+def test_no_kernel_per_iteration_or_seed():
+    scene = _box()
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        _mmlt(scene, 1, mutations_per_pixel=8)
+        dr.kernel_history()
+        _mmlt(scene, 2, mutations_per_pixel=8)
+        entries = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
+    new = [e for e in entries if not e.get("cache_hit", 1) or e.get("cache_disk", 0)]
+    assert entries and not new, "%d kernels compiled" % len(new)
+
+
+def test_plugin_api_and_refusals():
+    """``mi.render`` with the ``mlt`` plugin and ``bdpt_drjit.render(integrator="mlt")``
+    are the same render; an unbounded max_depth is refused with a message."""
+    scene = _box()
+    integ = mi.load_dict({"type": "mlt", "max_depth": 5, "pLarge": 0.1,
+                          "luminanceSamples": 4096, "chains": 256})
+    assert "MMLT" in integ.to_string() and "multiplexed" in type(integ).__doc__.lower()
+    a = mi.render(scene, integrator=integ, spp=8, seed=4).numpy()
+    b = bdpt_drjit.render(scene, spp=8, seed=4, integrator="mlt", max_depth=5,
+                          bootstrap_samples=4096, chains=256)
+    assert b.stats["integrator"] == "mlt" and len(b.stats["b_depths"]) == 5
+    assert b.stats["large_step_probability"] == 0.1     # MMLT's default (pssmlt: 0.3)
+    assert np.allclose(a, b.image, rtol=1e-4, atol=1e-6)
+    with pytest.raises(ValueError, match="finite max_depth"):
+        mmlt.MMLTRenderer(scene, max_depth=-1)
+    with pytest.raises(ValueError, match="mlt: unknown or unsupported parameter 'light_paths'"):
+        mmlt.MMLTRenderer(scene, max_depth=5, light_paths=1)
+    with pytest.raises(ValueError, match="lafortune"):
+        mmlt.MMLTRenderer(scene, max_depth=5, mis="lafortune")
+    with pytest.raises(ValueError, match="multiplex must be one of strategy, length"):
+        mmlt.MMLTRenderer(scene, max_depth=5, multiplex="technique")
+    with pytest.raises(ValueError, match="pssmlt: unknown or unsupported parameter 'multiplex'"):
+        bdpt_drjit.render(scene, spp=4, integrator="pssmlt", multiplex="length")
+
+
+def test_black_scene():
+    scene = mi.load_file(str(SCENES / "no-emitters.xml"), resx=8, resy=8)
+    with pytest.warns(UserWarning):
+        res = mmlt.render(scene, seed=1, mutations_per_pixel=4, bootstrap_samples=1024,
+                          chains=64, max_depth=4)
+    assert res.stats["b"] == 0 and not res.image.any()
+
+
+def test_cli(tmp_path):
+    import subprocess
+    import sys
+    from bdpt_drjit.exr import read_exr
+    from conftest import cli_env
+    out = tmp_path / "box.exr"
+    cmd = [sys.executable, "-m", "bdpt_drjit", "mlt", str(SCENES / "cornell-box.xml"),
+           "--integrator", "mlt", "--res", "16x16", "--spp", "64", "--chains", "256",
+           "--bootstrap-samples", "4096", "--max-depth", "5", "--no-large-step-mis",
+           "-o", str(out)]
+    p = subprocess.run(cmd + ["--time", "0.01"], capture_output=True, text=True, timeout=300,
+                       env=cli_env())
+    assert p.returncode == 0, p.stderr
+    assert "bdpt: mlt cornell-box.xml" in p.stderr
+    image, meta = read_exr(out)
+    assert meta["integrator"] == "mlt" and int(meta["passes"]) == 1
+    assert abs(image[..., :3].mean() / float(meta["b"]) - 1) < 1e-4
+    unbounded = cmd[:cmd.index("--max-depth") + 1] + ["-1"] + cmd[cmd.index("--max-depth") + 2:]
+    p = subprocess.run(unbounded, capture_output=True,
+                       text=True, timeout=300, env=cli_env())
+    assert p.returncode != 0 and "finite max_depth" in p.stderr and "Traceback" not in p.stderr
+
+
+@pytest.mark.slow
+def test_homogeneous_fog_matches_bdpt():
+    scene = mi.load_file(str(SCENES / "media" / "fog-cube.xml"), resx=16, resy=16, g=0.5)
+    runs = [_mmlt(scene, seed, max_depth=6).image for seed in range(6)]
+    refs = [bdpt_drjit.render(scene, spp=32, seed=400 + s, max_depth=6, light_paths=1,
+                              connections="all").image for s in range(6)]
+    assert_statistically_equal(runs, refs, blocks=4, what="fog cube")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", __import__("test_mlt").STRESS)
+def test_stress_scenes_finite(name):
+    scene = mi.load_file(str(SCENES / "stress" / name), resx=16, resy=16)
+    res = mmlt.render(scene, seed=1, mutations_per_pixel=4, bootstrap_samples=4096, chains=256,
+                      max_depth=8)
+    assert np.isfinite(res.image).all() and (res.image >= 0).all()
+    assert np.isfinite(res.stats["b"])
+
+
+@pytest.mark.parametrize("camera", ["thin lens, crop", "orthographic"])
+def test_other_cameras_match_bdpt(camera):
+    """A thin lens with a crop window, and an orthographic camera (no light image: the
+    t = 1 strategies a chain may pick are off and weigh 0, as in BDPT's MIS)."""
+    from test_cameras import ORTHOGRAPHIC, cornell_thin_lens, with_sensor
+    if camera == "orthographic":
+        scene = with_sensor("cornell-box.xml", ORTHOGRAPHIC, 16)
+    else:
+        scene = cornell_thin_lens(0.5, res=20, film_xml=(
+            '<integer name="crop_offset_x" value="5"/><integer name="crop_offset_y" '
+            'value="3"/><integer name="crop_width" value="12"/><integer '
+            'name="crop_height" value="12"/>'))
+    runs = [_mmlt(scene, seed, max_depth=6).image for seed in range(6)]
+    refs = [bdpt_drjit.render(scene, spp=32, seed=500 + s, max_depth=6, light_paths=1,
+                              connections="all").image for s in range(6)]
+    assert_statistically_equal(runs, refs, blocks=4, what=camera)
