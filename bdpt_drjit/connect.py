@@ -199,8 +199,13 @@ def _cached_vertices(ctx, store, state, v, connectible):
     order = store.order
     for m in range(picks):
         position = (ctx.lane * picks + m + offset) % ctx.stored
-        light = store.vertex(dr.gather(mi.UInt32, order, position, connectible), connectible)
-        on = connectible & ctx.strategies.enabled(light.s, t)
+        item = dr.gather(mi.UInt32, order, position, connectible)
+        # A pass that stored no vertex has one NONE: its pool's record 0 is unwritten
+        # memory, whose garbage vertex crashed a render (max_depth 2, where no vertex
+        # is stored, after earlier passes had filled that memory).
+        picked = connectible & (item != NONE)
+        light = store.vertex(item, picked)
+        on = picked & ctx.strategies.enabled(light.s, t)
         c, traced, groups = connect_vertices(ctx, light, on, state, v)
         c = c * ctx.connection_scale
         radiance = ctx.strategies.add(ctx.images, radiance, ctx.lane, light.s, t, c)

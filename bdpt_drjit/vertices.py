@@ -172,7 +172,8 @@ class LightVertexStore:
         to run; drawing position i of this order does not."""
         count = self._walk_lists(lambda item, k, path: None)
         start = dr.prefix_sum(count)                 # exclusive
-        order = dr.zeros(mi.UInt32, max(self.vertices.size(), 1))
+        # NONE where no vertex was stored: a pick there reads no record.
+        order = dr.full(mi.UInt32, NONE, max(self.vertices.size(), 1))
         dr.make_opaque(start, order)
         self._walk_lists(lambda item, k, path: dr.scatter(
             order, item, dr.gather(mi.UInt32, start, path) + k))

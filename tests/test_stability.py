@@ -626,3 +626,15 @@ def test_filters_preserve_light_image_energy():
         other = totals(film)
         assert all(np.isfinite(t).all() for t in other)
         assert_statistically_equal(other, box, blocks=1, what="light image energy, %s" % film)
+
+
+@pytest.mark.auto_budget
+def test_a_vertex_cache_with_no_stored_vertex_reads_no_record():
+    """At max_depth 2 no light vertex is stored, yet the pilot may choose a vertex
+    cache (connections=2).  Its picks read record 0 of the empty pool, memory that
+    earlier passes had filled: the camera walk of pass 5 crashed (a segfault; 64x64,
+    2048 spp, ~1.2M lanes per pass, Cornell box).  An empty pool now yields no pick."""
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=64, resy=64)
+    res = bdpt_drjit.render(scene, spp=2048, seed=1, max_depth=2)
+    assert res.stats["budget"].endswith("connections=2"), res.stats["budget"]
+    assert np.all(np.isfinite(res.image))
