@@ -46,10 +46,10 @@ from .walk import path_tracer_walk, trace_camera_subpaths, trace_light_subpaths
 
 # Bytes a pass holds per camera lane besides its light subpaths' (camera rays, the
 # samplers' state, the camera walk's outputs, the film's writes), and per light subpath
-# besides its pools (the light walk's state and outputs).  Peak memory of a pass
-# (dr.detail.malloc_watermark over the pass, 256x256, 3 spp per pass, 2026-11-26): Veach's
-# BDPT 1340 bytes per lane in the Cornell box and 2200 in Veach's bidirectional room (6
-# stored vertices per light subpath of capacity); light_paths=0.25 464 and 683.
+# besides its pools (the light walk's state and outputs).  Peak memory of a pass of
+# Veach's BDPT (python -m benchmarks.memory, 256x256, 2 spp per pass, 2026-11-26): 982
+# bytes per lane in the Cornell box, 1624 in Veach's bidirectional room (6 stored
+# vertices of capacity per light subpath), where this model plans 1640 and 1960.
 _CAMERA_LANE_BYTES = 300
 _LIGHT_PATH_BYTES = 500
 # Stored light vertices and splats per light subpath a pass plans for (measured: 3.0 and 3.2
