@@ -64,7 +64,7 @@ class CameraConnection:
     importance: mi.Float      # We * cos / d^2 over the lens position pdf: the camera's
                               # solid-angle density of the direction from the lens
                               # point (1 / (A cos^3)) divided by d^2
-    valid: mi.Bool            # inside the film and the clip range
+    valid: mi.Bool            # inside the sampled film region and the clip range
 
 
 class CameraModel:
@@ -72,15 +72,20 @@ class CameraModel:
 
     light_image_possible = True      # can a light vertex be connected to z_0 (t = 1)?
 
-    def __init__(self, sensor: mi.Sensor):
+    def __init__(self, sensor: mi.Sensor, border: int = 0):
+        """``border``: pixels around the crop window that camera samples cover (a film
+        that samples its filter border), where ``connect`` reaches the film too: every
+        strategy then samples the same film region, as the MIS weights assume."""
         self.sensor = sensor
         params = mi.traverse(sensor)
         self.to_world = mi.AffineTransform4f(params["to_world"])
         self.to_local = self.to_world.inverse()
         self.resolution = mi.Vector2f(mi.ScalarVector2f(sensor.film().crop_size()))
+        self.border = mi.Float(border)
         self.near = mi.Float(params["near_clip"])
         self.far = mi.Float(params["far_clip"])
-        dr.make_opaque(self.to_world, self.to_local, self.resolution, self.near, self.far)
+        dr.make_opaque(self.to_world, self.to_local, self.resolution, self.border, self.near,
+                       self.far)
 
     def pixel_index(self, uv: mi.Point2f) -> mi.UInt32:
         """The crop-window pixel (row-major) of a film position in pixels."""
@@ -179,8 +184,8 @@ class Camera(CameraModel):
     0 at the camera start), so the weights of the strategies that remain sum to one.
     """
 
-    def __init__(self, sensor: mi.Sensor):
-        super().__init__(sensor)
+    def __init__(self, sensor: mi.Sensor, border: int = 0):
+        super().__init__(sensor, border)
         params = mi.traverse(sensor)
         film = sensor.film()
         size, crop = mi.ScalarVector2f(film.size()), mi.ScalarVector2f(film.crop_size())
@@ -237,7 +242,9 @@ class Camera(CameraModel):
         seen = a + v * (self.focus_distance * dr.rcp(v.z)) if self.lens else local
         screen = self.camera_to_sample @ seen
         uv = mi.Point2f(screen.x, screen.y) - self.pp_offset
-        active &= (ct > 0) & (uv.x >= 0) & (uv.x <= 1) & (uv.y >= 0) & (uv.y <= 1)
+        # The film region the camera samples: the crop window and its sampled border.
+        lo, hi = -self.border / self.resolution, 1.0 + self.border / self.resolution
+        active &= (ct > 0) & dr.all((uv >= lo) & (uv <= hi))
         importance = self.normalization * dr.rcp(ct * ct * ct) * dr.square(inv_dist)
         lens = self.to_world @ a
         return CameraConnection(uv=mi.Point2f(uv * self.resolution), p=lens,
@@ -267,10 +274,12 @@ class OrthographicCamera(CameraModel):
                            "its direction is a delta")
 
 
-def make_camera(sensor: mi.Sensor) -> CameraModel:
-    """The camera model of a supported sensor (``check_sensor`` first)."""
+def make_camera(sensor: mi.Sensor, border: int = 0) -> CameraModel:
+    """The camera model of a supported sensor (``check_sensor`` first); ``border``:
+    ``CameraModel``'s."""
     check_sensor(sensor)
-    return OrthographicCamera(sensor) if sensor.class_name() == ORTHOGRAPHIC else Camera(sensor)
+    model = OrthographicCamera if sensor.class_name() == ORTHOGRAPHIC else Camera
+    return model(sensor, border)
 
 
 def check_sensor(sensor: mi.Sensor) -> None:

@@ -264,7 +264,9 @@ class Renderer:
         machine's calibration, measured on first use."""
         check_variant()
         self.sensor = camera_stage.select_sensor(scene, sensor)
-        self.camera = camera_stage.make_camera(self.sensor)
+        # Camera samples cover the crop and any sampled filter border; so do t = 1's.
+        border = camera_stage.sampled_border(self.sensor.film())
+        self.camera = camera_stage.make_camera(self.sensor, border)
         self.scene = scene
         self.settings = Settings.from_dict(settings)
         camera_stage.check_settings(self.camera, self.settings)
@@ -314,7 +316,7 @@ class Renderer:
         aov_list = aovs.parse(self.settings.aovs)
         self.aovs = aovs.AOVs(scene, aov_list) if aov_list else None
         self.film = FilmAccumulator(film, coalesce=self.spp >= 4, layers=layers,
-                                    aov_names=aovs.channel_names(aov_list))
+                                    aov_names=aovs.channel_names(aov_list), border=border)
         self.passes_done = 0
         self.spp_done = 0.0           # samples per pixel rendered (fractional: pixel ranges)
         self.time = 0.0

@@ -67,10 +67,7 @@ def test_global_medium_without_boundary():
 
 def test_area_light_on_a_shape_with_media():
     """A sphere light whose shape declares the fog outside it (and another medium
-    inside): light subpaths start in the medium on the side they leave by.  (A box
-    filter: with a wider one, light-image splats near the border lose the part of
-    their footprint outside the film, in Mitsuba's ptracer as here, and this lamp at
-    the frame's edge read 10% low in both.)"""
+    inside): light subpaths start in the medium on the side they leave by."""
     T = mi.ScalarTransform4f
     scene = mi.load_dict({
         "type": "scene",
@@ -188,8 +185,7 @@ def test_fog_just_under_the_light_of_the_cornell_box():
     estimation read 7% darker than light tracing (red, 16x16: 0.1865 against 0.2014;
     Veach's BDPT 0.1995), at every path length from 2 on.  Volpath, which has the
     same flaw (see ``_lamp_over_fog``), cannot be the reference here; light tracing,
-    path tracing and Veach's BDPT must agree.  (A box filter: a wider one loses the
-    border's light-image splats, README "Films".)"""
+    path tracing and Veach's BDPT must agree."""
     d = mi.cornell_box()
     d["sensor"]["film"].update(width=16, height=16, rfilter={"type": "box"})
     d["fog"] = {"type": "cube", "to_world": mi.ScalarTransform4f().scale(0.9), "bsdf": {"type": "null"},
