@@ -72,7 +72,7 @@ class PathState:
                             # at z_j (mis.lafortune_specularity)
     lw_prev: mi.Float       # the same without z_{j-1}'s factor
     radiance: mi.Spectrum   # camera walk: sum of this sample's strategies
-    hit: mi.Bool            # camera walk: the camera ray hit a surface (film alpha)
+    hit: mi.Bool            # camera walk: the path reached an opaque surface (film alpha)
     last_item: mi.UInt32    # light walk: this lane's last stored vertex (or NONE)
     slot: mi.UInt32         # camera walk, pilot passes: moment samples recorded
     specular_z1: mi.Bool    # camera walk: z_1 scattered through a delta lobe
@@ -218,7 +218,7 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
         t = state.depth + 1
         first = state.depth == 1
         flight, v = _next_vertex(ctx, state, sampler)
-        state.hit |= first & (flight.surface | flight.medium)
+        state.hit |= first & flight.medium
         if ctx.emitters.environment is not None:
             _add(ctx, state, 0, t, connect.environment_hit(ctx, state, flight))
         _camera_vertex_mis(ctx, state, v, flight)
@@ -243,7 +243,10 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
             if not ctx.weights.shadow:          # a shadow pass merges for its moments only
                 state.radiance = ctx.strategies.add_merge(ctx.images, state.radiance, ctx.lane, merged)
         goes_on = walking if max_j is None else walking & (state.depth < max_j)
-        delta = _scatter(ctx, state, v, u, goes_on, importance=False)
+        delta, null = _scatter(ctx, state, v, u, goes_on, importance=False)
+        # Film alpha, as Mitsuba's path: a surface the path reaches and does not pass
+        # through by a null lobe (mask, null: a medium boundary) makes the sample opaque.
+        state.hit |= flight.surface & ~null
         if ctx.strategies.ppm:                  # merged at its first smooth vertex
             state.active &= delta
         state.specular_z1 |= first & delta
@@ -323,12 +326,13 @@ def _add(ctx, state: PathState, s, t, value, rays=None):
 def _scatter(ctx, state: PathState, v: Vertex, u: DepthSamples, active, importance: bool):
     """Sample the BSDF (or phase function) at the current vertex, extend the subpath by
     one ray, update the MIS chains and apply Russian roulette; returns whether a delta
-    lobe was sampled."""
+    lobe, and whether a null lobe, was sampled."""
     mode = IMPORTANCE if importance else RADIANCE
     bs, weight, wo = v.sample(mode, u.lobe, u.direction, active)
     cos_out, ok = v.cosine(wo)
     active = active & ok & (bs.pdf > 0)
     delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+    null = active & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Null)
     if importance:
         # Smooth lobes: the adjoint from the BSDF itself (surface.eval_adjoint); a delta
         # lobe cannot be evaluated, so it keeps the correction with si.sh_frame.  The
@@ -362,7 +366,7 @@ def _scatter(ctx, state: PathState, v: Vertex, u: DepthSamples, active, importan
         state.medium = v.medium_toward(wo)
     state.depth += 1
     state.active = _roulette(ctx, state, u.roulette, active, importance)
-    return delta
+    return delta, null
 
 
 def _roulette(ctx, state: PathState, u, active, importance: bool) -> mi.Bool:

@@ -311,6 +311,29 @@ def test_strategy_subsets_match_their_mitsuba_counterparts(box, subset, ref):
     assert_statistically_equal(ours, theirs, what="strategy_subset=" + subset)
 
 
+def test_alpha_behind_a_mask_matches_path():
+    """Alpha through a surface that lets some of the light pass (a mask of opacity 0.3
+    filling the view, a sphere behind part of it): a sample is opaque where its path
+    reaches a surface and does not pass it by the null lobe, as Mitsuba's path counts
+    it: 0.3 where the void lies behind the mask, 1 over the sphere.  Failed before:
+    alpha was 1 wherever the camera ray hit any surface (1 over the whole mask)."""
+    T = mi.ScalarTransform4f
+    scene = mi.load_dict({
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": 40,
+                   "to_world": T().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 24, "height": 16, "pixel_format": "rgba"}},
+        "veil": {"type": "rectangle", "to_world": T().translate([0, 0, 1]).scale(3),
+                 "bsdf": {"type": "mask", "opacity": 0.3, "bsdf": {"type": "diffuse"}}},
+        "ball": {"type": "sphere", "center": [0.5, 0, -1], "radius": 0.8},
+        "light": {"type": "point", "position": [0, 2, 3], "intensity": {"type": "rgb", "value": 10.0}}})
+    ours = [bdpt_drjit.render(scene, spp=16, seed=s, max_depth=4).image[..., 3:] for s in range(8)]
+    ref = [mitsuba_render(scene, "path", 16, seed=100 + s, max_depth=4)[..., 3:] for s in range(8)]
+    assert 0.3 < np.mean(ours) < 0.7
+    assert_statistically_equal([np.repeat(o, 3, -1) for o in ours],
+                               [np.repeat(r, 3, -1) for r in ref], what="alpha behind a mask")
+
+
 @pytest.mark.parametrize("environment", [False, True])
 def test_alpha_matches_path(environment):
     """With an rgba film, alpha is 1 where camera rays hit a surface and 0 where they
