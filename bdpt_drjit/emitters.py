@@ -172,33 +172,15 @@ class Emitters:
 
     @staticmethod
     def _spot_cos_cutoff(e) -> float:
-        """cos(cutoff angle) of a spot light, recovered from its own ray sampling.
-
-        Mitsuba's spot samples a uniform cone, so weight = I(d) / pdf_cone wherever
-        it emits; the intensity along that direction comes from ``eval_direction``.
-        Several directions are tried, as a textured spot may be dark along some.
-        """
-        n = 64
-        k = dr.arange(mi.Float, n)
-        u = mi.Point2f((k + 0.5) / n, k * 0.618034 - dr.floor(k * 0.618034))
-        ray, w = e.sample_ray(0.0, 0.5, mi.Point2f(0.5, 0.5), u)
-        it = dr.zeros(mi.Interaction3f)
-        it.p = ray.o + ray.d
-        ds = dr.zeros(mi.DirectionSample3f)
-        ds.p, ds.d, ds.dist, ds.pdf, ds.delta = ray.o, -ray.d, 1.0, 1.0, True
-        intensity = e.eval_direction(it, ds)
-        i_max = dr.max(mi.unpolarized_spectrum(intensity)).numpy()
-        w_max = dr.max(mi.unpolarized_spectrum(w)).numpy()
-        ok = (w_max > 0) & (i_max > 0)
-        if not ok.any():
-            raise UnsupportedPluginError("bdpt: could not determine the cone of spot "
-                                         "emitter %s (it emits nothing)" % e.id())
-        pdf = float((i_max[ok] / w_max[ok]).mean())
-        cos_max = 1.0 - 1.0 / (2.0 * math.pi * pdf)
-        if not (-1.0 <= cos_max < 1.0):
-            raise UnsupportedPluginError("bdpt: could not determine the cone of spot "
-                                         "emitter %s" % e.id())
-        return cos_max
+        """cos(cutoff angle) of a spot light, from its ``cutoff_angle`` parameter (in
+        degrees): not from its sampled rays' weights, which in spectral variants also
+        hold the density of their wavelengths."""
+        params = mi.traverse(e)
+        if "cutoff_angle" not in params:
+            raise UnsupportedPluginError("bdpt: spot emitter %s exposes no cutoff_angle"
+                                         % e.id())
+        angle = float(params["cutoff_angle"][0])
+        return math.cos(math.radians(angle))
 
     # -- lookups ----------------------------------------------------------------
     def index(self, emitter: mi.EmitterPtr, active=True) -> mi.UInt32:
