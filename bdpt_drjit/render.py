@@ -344,13 +344,14 @@ class Renderer:
         self._pilot_round = 0           # passes of the round the pilot opens (2 or 3)
         if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
             self._plan_pilot(max_lanes)
-            if not self.media.present:
-                # Where the pilot chooses path tracing, Mitsuba's path renders the rest.
+            if not self.media.present and not support.mitsuba_path_drops_light(self.scene):
+                # Where the pilot chooses path tracing, Mitsuba's path renders the rest
+                # (elsewhere this engine's camera walk does, with s <= 1).
                 self._path_tracer = mi.load_dict({
                     "type": "path", "max_depth": self.settings.max_depth,
                     "rr_depth": self.settings.rr_depth,
                     "hide_emitters": self.settings.hide_emitters})
-            self.pilot.costs.path_tracer = True
+            self.pilot.costs.path_tracer = self._path_tracer is not None
 
     def _lanes_for(self, budget: Budget) -> int:
         """The camera lanes of a pass of ``budget`` that fit the memory budget: its light

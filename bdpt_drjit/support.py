@@ -179,6 +179,21 @@ def all_shapes(scene: mi.Scene) -> list:
     return shapes
 
 
+def mitsuba_path_drops_light(scene: mi.Scene) -> bool:
+    """Whether Mitsuba's ``path`` (3.9) loses light in this scene: it returns 0 for a
+    path that never samples a non-null lobe at a surface (its ``valid_ray``), so what
+    next-event estimation gathered at a surface that scatters and lets light pass (a
+    mask, a blend with ``null``) is dropped when the null lobe is sampled there and the
+    ray then escapes: a mask of opacity 0.5 over the void renders at 25% of its
+    opaque brightness in ``path``, 50% in ``volpath`` and here."""
+    for shape in all_shapes(scene):
+        bsdf = shape.bsdf()
+        if bsdf is not None and all(mi.has_flag(bsdf.flags(), flag)
+                                    for flag in (mi.BSDFFlags.Null, mi.BSDFFlags.Smooth)):
+            return True
+    return False
+
+
 # -- sensors -------------------------------------------------------------------------
 def _sensor_verdicts(sensor) -> list:
     name = describe(sensor)
