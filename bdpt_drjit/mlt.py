@@ -74,7 +74,7 @@ MLT_PARAMS = {"mutations_per_pixel": 0, "large_step_probability": 0.3,
 # equal time 0.1 gave 0.97x the default bdpt's relMSE on the door's 0.05 gap against
 # 0.3's 1.20x, 0.82x against 0.96x on its 0.01 gap (2 runs each), the box 23.9x
 # against 22.3x (benchmarks/RESULTS.md).
-MMLT_PARAMS = {"multiplex": "strategy", "large_step_probability": 0.1}
+MMLT_PARAMS = {"multiplex": "strategy", "large_step_probability": 0.1, "direct_samples": 0}
 MULTIPLEX = ("strategy", "length")
 # Automatic chains and bootstrap (automatic_plan).  The image's error is mostly the
 # chains' start: a chain forgets its bootstrap state only through accepted large steps
@@ -226,6 +226,9 @@ def mlt_settings(values: dict, name: str = "pssmlt") -> tuple[dict, dict]:
     if mlt.get("multiplex", "strategy") not in MULTIPLEX:
         raise ValueError("%s: multiplex must be one of %s, got %r"
                          % (name, ", ".join(MULTIPLEX), mlt["multiplex"]))
+    if mlt.get("direct_samples", 0) < -1:
+        raise ValueError("%s: direct_samples must be >= -1 (-1: none, 0: automatic), got %d"
+                         % (name, mlt["direct_samples"]))
     if min(mlt["mutations_per_pixel"], mlt["bootstrap_samples"], mlt["chains"]) < 0:
         raise ValueError("%s: mutations_per_pixel, bootstrap_samples and chains must be "
                          ">= 0 (0: the sample count; automatic)" % name)
@@ -258,6 +261,7 @@ class MLTRenderer:
         check_variant()
         mlt, bdpt = mlt_settings(params, self.name)
         self.multiplex = mlt.get("multiplex")
+        self.direct_samples = mlt.get("direct_samples", -1)
         self.sensor = camera_stage.select_sensor(scene, sensor)
         self.camera = camera_stage.make_camera(self.sensor)
         self.scene, self.seed = scene, int(seed)
@@ -430,13 +434,14 @@ class MLTRenderer:
             return
         start = time.perf_counter()
         with dr.suspend_grad():
-            if self.state is not None:
-                self._iterate(self.iterations_done)
+            self._iterate(self.iterations_done)
             dr.sync_thread()
         self.iterations_done += 1
         self.time += time.perf_counter() - start
 
     def _iterate(self, i: int) -> None:
+        if self.state is None:
+            return
         x, n = self.state, self.chains
         chain = dr.arange(mi.UInt32, n)
         step_key = self._key(0x17, i)

@@ -55,7 +55,18 @@ import numpy as np
 
 from . import pss
 from .mlt import BOOTSTRAP_LANES, Chains, Evaluation, MLTRenderer, chains_for_ess
+from .film import FilmAccumulator
 from .optimizer import luminance
+
+# Separate direct samples (``direct_samples``, MMLTRenderer._plan_direct): paths of up to
+# DIRECT_LENGTH edges (emitters seen directly, direct illumination) are rendered by
+# independent BDPT samples of those lengths where they carry at least DIRECT_SHARE of
+# the bootstrap's brightness, at least MIN_DIRECT_LANES per iteration.  A chain carries
+# one strategy: on the diffuse box 54% of the brightness is the lamp seen directly,
+# which its chains sampled as a fraction of their states (benchmarks/RESULTS.md).
+DIRECT_LENGTH = 2
+DIRECT_SHARE = 0.05
+MIN_DIRECT_LANES = 1024
 
 
 class ChainStrategies:
@@ -68,19 +79,22 @@ class ChainStrategies:
     def __init__(self, base):
         self.base = base
         self.s = self.t = self.k = None
+        self.up_to = False
 
     def __getattr__(self, name):
         return getattr(self.base, name)
 
     def set_lanes(self, s, t) -> None:
         self.s, self.t = (None, None) if s is None else (mi.UInt32(s), mi.UInt32(t))
-        self.k = None
+        self.k, self.up_to = None, False
         dr.eval(self.s, self.t)
 
-    def set_lengths(self, k) -> None:
-        """Every strategy of path length k per lane (``multiplex="length"``)."""
+    def set_lengths(self, k, up_to: bool = False) -> None:
+        """Every strategy of path length k per lane (``multiplex="length"``); with
+        ``up_to``, of every length 1 .. k (the separate direct samples).  The walks
+        stop at the same vertices for both."""
         self.s = self.t = None
-        self.k = mi.UInt32(k)
+        self.k, self.up_to = mi.UInt32(k), up_to
         dr.eval(self.k)
 
     @property
@@ -90,7 +104,7 @@ class ChainStrategies:
     def enabled(self, s, t):
         on = self.base.enabled(s, t)
         if self.k is not None:
-            return on & (s + t - 1 == self.k)
+            return on & ((s + t - 1 <= self.k) if self.up_to else (s + t - 1 == self.k))
         return on if self.s is None else on & (self.s == s) & (self.t == t)
 
     def stores(self, s):
@@ -177,7 +191,9 @@ class MMLTRenderer(MLTRenderer):
 
     def __init__(self, scene: mi.Scene, sensor=0, seed: int = 0, **params):
         self.b_depths, self.chains_per_depth = None, None
+        self.b_direct, self.direct_lanes = 0.0, 0
         super().__init__(scene, sensor=sensor, seed=seed, **params)
+        self.direct_film = FilmAccumulator(self.sensor.film(), coalesce=False)
 
     def _configure(self) -> None:
         if self.settings.max_depth < 1:
@@ -213,45 +229,74 @@ class MMLTRenderer(MLTRenderer):
 
     def bootstrap(self):
         """b_k per path length from full BDPT samples (their strategies' luminances
-        summed per k: Rao-Blackwellized over the strategy stream), b = sum b_k, and
-        the chains' first states (``_start``)."""
+        summed per k: Rao-Blackwellized over the strategy stream), b = sum b_k, the
+        direct samples' plan (``_plan_direct``) and the chains' first states
+        (``_start``) on the lengths the chains render."""
         if self.emitters.count == 0:            # black (support.check warned)
             return 0.0, None
         keys = self._stream_keys(0xB0)
-        f_np, self.b_depths, square = self._bootstrap_targets(keys, self.bootstrap_samples)
+        targets, self.b_depths = self._bootstrap_targets(keys, self.bootstrap_samples)
         b = float(self.b_depths.sum())
         if b <= 0.0:
             return 0.0, None
+        self._plan_direct(b)
+        f_np, square = targets[self.direct_lanes > 0]
+        if self.direct_lanes:
+            self.b_depths[:DIRECT_LENGTH] = 0.0
+        b_chains = float(self.b_depths.sum())
         if self.automatic_chains:       # the effective sample size of the cells (k, s, u)
-            ess = (b * self.bootstrap_samples) ** 2 / square if square > 0.0 else 0.0
+            ess = (b_chains * self.bootstrap_samples) ** 2 / square if square > 0.0 else 0.0
             self.chains = chains_for_ess(self.chains, ess)
             self.iterations = max(1, round(self.mutations / self.chains))
+            self._plan_direct(b)
+        if b_chains <= 0.0:                     # direct light only
+            return b, None
         return b, self._start(keys, self._resample(f_np))
 
+    def _plan_direct(self, b: float) -> None:
+        """Whether paths of lengths 1 .. DIRECT_LENGTH are rendered by independent
+        samples instead of the chains (Mitsuba 0.6's ``directSamples``), and how many
+        per iteration: ``direct_samples`` per pixel, or (0) chains x their share
+        b_direct / b of the brightness rounded down to a power of two, at least
+        MIN_DIRECT_LANES; none where that share is below DIRECT_SHARE (the chains then
+        render every length) or ``direct_samples`` is -1.  Either way the image's
+        expectation is the same: the chains' target then lacks those lengths."""
+        self.b_direct = float(self.b_depths[:DIRECT_LENGTH].sum())
+        share = self.b_direct / b
+        if self.direct_samples < 0 or self.settings.max_depth <= DIRECT_LENGTH or (
+                self.direct_samples == 0 and share < DIRECT_SHARE):
+            self.direct_lanes = 0
+        elif self.direct_samples > 0:
+            self.direct_lanes = self.direct_samples * self.pixels
+        else:
+            lanes = max(MIN_DIRECT_LANES, int(self.chains * share))
+            self.direct_lanes = 1 << (lanes.bit_length() - 1)
+
     def _bootstrap_targets(self, keys, count: int):
-        """f of full BDPT samples 0 .. count - 1 (every coordinate hashed), the
-        mean per path length of their strategies' luminances, b_k, and the sum of
-        their squares (the start states are cells (k, s) of samples: their effective
-        sample size (sum L)^2 / sum L^2 is at least that of f, whose cross terms
-        it lacks)."""
+        """Per bootstrap sample 0 .. count - 1 (every coordinate hashed), with and
+        without the lengths 1 .. DIRECT_LENGTH (``[separate]``): its strategies'
+        luminance summed, f, and the sum of their squares (the start states are cells
+        (k, s) of samples: their effective sample size (sum L)^2 / sum L^2 is at least
+        that of f, whose cross terms it lacks); and the mean per path length, b_k."""
         self.strategies.set_lanes(None, None)
         depths = self.settings.max_depth
-        f_all, sums, square = [], np.zeros(depths), 0.0
+        f_all, sums, squares = ([], []), np.zeros(depths), np.zeros(2)
         batch = max(self.chains, BOOTSTRAP_LANES)
         k_of, _ = self._cell_table()
+        far = k_of > DIRECT_LENGTH
         for start in range(0, count, batch):
             n = min(batch, count - start)
             ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, start)
             self.images = StrategyLuminance(n, depths)
-            ev = self._evaluate_vectors(n, keys, ident, {name: None for name in self.dims})
+            self._evaluate_vectors(n, keys, ident, {name: None for name in self.dims})
             per_cell = self._cells(n)
             sums += np.bincount(k_of - 1, weights=per_cell.sum(axis=0), minlength=depths)
-            square += float(np.sum(per_cell * per_cell))
-            f_all.append(ev.f.numpy())
+            for j, cells_j in enumerate((per_cell, per_cell[:, far])):
+                squares[j] += float(np.sum(cells_j * cells_j))
+                f_all[j].append(cells_j.sum(axis=1))
         self.images = None
-        f_np = np.concatenate(f_all).astype(np.float64)
-        f_np[~np.isfinite(f_np)] = 0.0
-        return f_np, sums / count, square
+        targets = [(np.concatenate(f_all[j]), squares[j]) for j in range(2)]
+        return targets, sums / count
 
     def _cell_table(self):
         """(k, s) of the start states' cells: a strategy each, or (``multiplex="length"``)
@@ -285,11 +330,13 @@ class MMLTRenderer(MLTRenderer):
         self._evaluate_vectors(n, keys, pick, x)
         per_cell = self._cells(n)
         self.images = None
+        k_of, s_of = self._cell_table()
+        if self.direct_lanes:                   # those lengths: the direct samples'
+            per_cell[:, k_of <= DIRECT_LENGTH] = 0.0
         cum = np.cumsum(per_cell, axis=1)
         chain = dr.arange(mi.UInt32, n)
         u = pss.hash_uniform(self._key(0xB2), chain, 0).numpy() * cum[:, -1]
         cell = np.minimum((cum <= u[:, None]).sum(axis=1), per_cell.shape[1] - 1)
-        k_of, s_of = self._cell_table()
         order = np.lexsort((s_of[cell], k_of[cell]))
         k, s = k_of[cell][order], s_of[cell][order]
         jitter = pss.hash_uniform(self._key(0xB2), chain, 1).numpy()
@@ -310,6 +357,32 @@ class MMLTRenderer(MLTRenderer):
             scale=dr.gather(mi.Float, mi.Float(np.append(0.0, c_k)), depth),
             b_depth=dr.gather(mi.Float, mi.Float(np.append(0.0, self.b_depths)), depth), **x)
 
+    def _iterate(self, i: int) -> None:
+        if self.state is not None:
+            super()._iterate(i)
+        if self.direct_lanes:
+            self._direct(i)
+
+    def _direct(self, i: int) -> None:
+        """Iteration i's independent samples of the paths of lengths 1 .. DIRECT_LENGTH
+        (every strategy of them with its MIS weight, hashed primary samples), on their
+        own film: the image of those lengths is their records' mean (``tensor``)."""
+        n = self.direct_lanes
+        self.strategies.set_lengths(dr.full(mi.UInt32, DIRECT_LENGTH, n), up_to=True)
+        ev = self._evaluate_vectors(n, self._stream_keys(0xD1, i), dr.arange(mi.UInt32, n),
+                                    {name: None for name in self.dims})
+        for records in (ev.camera, ev.splats):
+            if dr.width(records.lane):
+                self.direct_film.put_light(records.pos, records.value)
+
+    def tensor(self) -> mi.TensorXf:
+        """The chains' image, plus the direct samples' (N / (samples so far))."""
+        image = super().tensor()
+        if self.direct_lanes and self.iterations_done:
+            image += self.direct_film.develop_light(
+                self.pixels / (self.direct_lanes * self.iterations_done))
+        return image
+
     def _evaluate_proposal(self, keys, identity, y: dict) -> Evaluation:
         return self._evaluate_chains(keys, identity, y, self.state.depth)
 
@@ -323,6 +396,8 @@ class MMLTRenderer(MLTRenderer):
         if self.chains_per_depth is not None:
             res.stats["b_depths"] = [float(v) for v in self.b_depths]
             res.stats["chains_per_depth"] = [int(v) for v in self.chains_per_depth]
+        res.stats["b_direct"] = self.b_direct
+        res.stats["direct_samples_per_iteration"] = self.direct_lanes
         return res
 
 

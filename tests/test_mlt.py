@@ -69,10 +69,12 @@ def test_other_steps_match_bdpt(p_large, mis, kind):
 
 @pytest.mark.parametrize("kind", list(KINDS))
 def test_image_sum_is_b_at_every_iteration(kind):
-    """mlt: sum over chains of c_k = sum_k n_k b_k N / n_k = b N (without Kelemen's MIS)."""
+    """mlt: sum over chains of c_k = sum_k n_k b_k N / n_k = b N (without Kelemen's MIS;
+    without the separate direct samples: test_direct_samples)."""
     scene = _box()
+    extra = {"direct_samples": -1} if kind == "mlt" else {}
     r = KINDS[kind][1](scene, seed=3, mutations_per_pixel=8, bootstrap_samples=8192,
-                       chains=512, max_depth=5, large_step_mis=False)
+                       chains=512, max_depth=5, large_step_mis=False, **extra)
     assert r.b > 0
     while not r.done:
         r.run_iteration()
@@ -80,6 +82,35 @@ def test_image_sum_is_b_at_every_iteration(kind):
         assert abs(img.mean() / r.b - 1.0) < 1e-4, (img.mean(), r.b)
     if kind == "pssmlt":
         assert 0.5 < r.result().stats["acceptance"] < 1.0
+
+
+def test_direct_samples():
+    """mlt's separate direct samples (mmlt._plan_direct): on the box, where paths of 1
+    and 2 edges carry most of the light, the chains start on longer paths only and
+    their image's sum is (b - b_direct) N at every iteration, the direct samples'
+    image is the rest, and the sum of both agrees with BDPT (test_other_steps_match_bdpt
+    and the others render mlt with them too); -1 turns them off, N > 0 takes N per
+    pixel per iteration; on the door, whose direct light is a sliver, the automatic
+    plan takes none."""
+    scene = _box()
+    kw = dict(mutations_per_pixel=8, bootstrap_samples=8192, chains=512, max_depth=5,
+              large_step_mis=False)
+    r = mmlt.MMLTRenderer(scene, seed=3, **kw)
+    assert r.direct_lanes == mmlt.MIN_DIRECT_LANES and r.b_direct > mmlt.DIRECT_SHARE * r.b
+    assert r.chains_per_depth[:mmlt.DIRECT_LENGTH].sum() == 0
+    assert r.chains_per_depth.sum() == 512
+    while not r.done:
+        r.run_iteration()
+        chains = mlt.MLTRenderer.tensor(r).numpy()
+        assert abs(chains.mean() / (r.b - r.b_direct) - 1.0) < 1e-4
+        assert r.tensor().numpy().mean() > chains.mean()
+    assert mmlt.MMLTRenderer(scene, seed=3, direct_samples=-1, **kw).direct_lanes == 0
+    assert mmlt.MMLTRenderer(scene, seed=3, direct_samples=2, **kw).direct_lanes == 2 * 256
+    with pytest.raises(ValueError, match="direct_samples"):
+        mmlt.MMLTRenderer(scene, direct_samples=-2)
+    door = mi.load_file(str(SCENES / "door-ajar.xml"), resx=16, resy=16, gap_start=0.49)
+    r = mmlt.MMLTRenderer(door, seed=1, **kw)
+    assert r.direct_lanes == 0 and r.b_direct < mmlt.DIRECT_SHARE * r.b
 
 
 def test_automatic_plan():
