@@ -58,7 +58,7 @@ from .mlt import BOOTSTRAP_LANES, Chains, Evaluation, MLTRenderer, chains_for_es
 from .film import FilmAccumulator
 from .optimizer import luminance
 
-# Separate direct samples (``direct_samples``, MMLTRenderer._plan_direct): paths of up to
+# Separate direct samples (``direct_samples``, MMLTRenderer._separate_direct): paths of up to
 # DIRECT_LENGTH edges (emitters seen directly, direct illumination) are rendered by
 # independent BDPT samples of those lengths where they carry at least DIRECT_SHARE of
 # the bootstrap's brightness, at least MIN_DIRECT_LANES per iteration.  A chain carries
@@ -230,7 +230,7 @@ class MMLTRenderer(MLTRenderer):
     def bootstrap(self):
         """b_k per path length from full BDPT samples (their strategies' luminances
         summed per k: Rao-Blackwellized over the strategy stream), b = sum b_k, the
-        direct samples' plan (``_plan_direct``) and the chains' first states
+        direct samples' plan (``_separate_direct``) and the chains' first states
         (``_start``) on the lengths the chains render."""
         if self.emitters.count == 0:            # black (support.check warned)
             return 0.0, None
@@ -239,38 +239,39 @@ class MMLTRenderer(MLTRenderer):
         b = float(self.b_depths.sum())
         if b <= 0.0:
             return 0.0, None
-        self._plan_direct(b)
-        f_np, square = targets[self.direct_lanes > 0]
-        if self.direct_lanes:
+        self.b_direct = float(self.b_depths[:DIRECT_LENGTH].sum())
+        separate = self._separate_direct(b)
+        f_np, square = targets[separate]
+        if separate:
             self.b_depths[:DIRECT_LENGTH] = 0.0
         b_chains = float(self.b_depths.sum())
         if self.automatic_chains:       # the effective sample size of the cells (k, s, u)
             ess = (b_chains * self.bootstrap_samples) ** 2 / square if square > 0.0 else 0.0
             self.chains = chains_for_ess(self.chains, ess)
             self.iterations = max(1, round(self.mutations / self.chains))
-            self._plan_direct(b)
+        self.direct_lanes = self._direct_lanes(b) if separate else 0
         if b_chains <= 0.0:                     # direct light only
             return b, None
         return b, self._start(keys, self._resample(f_np))
 
-    def _plan_direct(self, b: float) -> None:
+    def _separate_direct(self, b: float) -> bool:
         """Whether paths of lengths 1 .. DIRECT_LENGTH are rendered by independent
-        samples instead of the chains (Mitsuba 0.6's ``directSamples``), and how many
-        per iteration: ``direct_samples`` per pixel, or (0) chains x their share
-        b_direct / b of the brightness rounded down to a power of two, at least
-        MIN_DIRECT_LANES; none where that share is below DIRECT_SHARE (the chains then
-        render every length) or ``direct_samples`` is -1.  Either way the image's
+        samples instead of the chains (Mitsuba 0.6's ``directSamples``): where
+        ``direct_samples`` > 0, or (0) where they carry at least DIRECT_SHARE of the
+        brightness b (else the chains render every length).  Either way the image's
         expectation is the same: the chains' target then lacks those lengths."""
-        self.b_direct = float(self.b_depths[:DIRECT_LENGTH].sum())
-        share = self.b_direct / b
-        if self.direct_samples < 0 or self.settings.max_depth <= DIRECT_LENGTH or (
-                self.direct_samples == 0 and share < DIRECT_SHARE):
-            self.direct_lanes = 0
-        elif self.direct_samples > 0:
-            self.direct_lanes = self.direct_samples * self.pixels
-        else:
-            lanes = max(MIN_DIRECT_LANES, int(self.chains * share))
-            self.direct_lanes = 1 << (lanes.bit_length() - 1)
+        if self.direct_samples < 0 or self.settings.max_depth <= DIRECT_LENGTH:
+            return False
+        return self.direct_samples > 0 or self.b_direct >= DIRECT_SHARE * b
+
+    def _direct_lanes(self, b: float) -> int:
+        """Direct samples per iteration: ``direct_samples`` per pixel, or (0) chains x
+        their share b_direct / b rounded down to a power of two, at least
+        MIN_DIRECT_LANES."""
+        if self.direct_samples > 0:
+            return self.direct_samples * self.pixels
+        lanes = max(MIN_DIRECT_LANES, int(self.chains * self.b_direct / b))
+        return 1 << (lanes.bit_length() - 1)
 
     def _bootstrap_targets(self, keys, count: int):
         """Per bootstrap sample 0 .. count - 1 (every coordinate hashed), with and

@@ -55,6 +55,8 @@ from integrators.bdpt import GRADIENT_ERROR, NESTING_ERROR, seed_value
 LEGACY = {"pLarge": "large_step_probability", "luminanceSamples": "bootstrap_samples",
           "maxDepth": "max_depth", "rrDepth": "rr_depth", "hideEmitters": "hide_emitters",
           "lightImage": "light_image"}
+# The mlt plugin's (mmlt.py): its separate direct samples.
+LEGACY_MMLT = {"directSamples": "direct_samples"}
 LEGACY_REFUSED = {
     "directSamples": "direct light is rendered by the chains with the rest (set nothing)",
     "twoStage": "two-stage MLT is not implemented",
@@ -67,6 +69,9 @@ def settings_from(props: mi.Properties, name: str = "pssmlt") -> dict:
     from bdpt_drjit import mlt
     out = {}
     for key in props.keys():
+        if name == "mlt" and key in LEGACY_MMLT:
+            out[LEGACY_MMLT[key]] = props[key]
+            continue
         if key in LEGACY_REFUSED:
             raise ValueError("%s: Mitsuba 0.6 parameter '%s' has no equivalent: %s"
                              % (name, key, LEGACY_REFUSED[key]))

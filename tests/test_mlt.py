@@ -85,7 +85,7 @@ def test_image_sum_is_b_at_every_iteration(kind):
 
 
 def test_direct_samples():
-    """mlt's separate direct samples (mmlt._plan_direct): on the box, where paths of 1
+    """mlt's separate direct samples (mmlt._separate_direct): on the box, where paths of 1
     and 2 edges carry most of the light, the chains start on longer paths only and
     their image's sum is (b - b_direct) N at every iteration, the direct samples'
     image is the rest, and the sum of both agrees with BDPT (test_other_steps_match_bdpt
@@ -104,6 +104,12 @@ def test_direct_samples():
         chains = mlt.MLTRenderer.tensor(r).numpy()
         assert abs(chains.mean() / (r.b - r.b_direct) - 1.0) < 1e-4
         assert r.tensor().numpy().mean() > chains.mean()
+    # automatic chains (the effective sample size of the chains' cells sets them): the
+    # direct samples stay (the chains started on paths of 3 edges up and no direct
+    # samples were taken before: the door's image lacked 6% of its light)
+    auto = mmlt.MMLTRenderer(scene, seed=3, mutations_per_pixel=64, max_depth=5)
+    assert auto.chains_per_depth[:mmlt.DIRECT_LENGTH].sum() == 0
+    assert auto.direct_lanes >= mmlt.MIN_DIRECT_LANES and auto.b_direct > 0
     assert mmlt.MMLTRenderer(scene, seed=3, direct_samples=-1, **kw).direct_lanes == 0
     assert mmlt.MMLTRenderer(scene, seed=3, direct_samples=2, **kw).direct_lanes == 2 * 256
     with pytest.raises(ValueError, match="direct_samples"):

@@ -19,7 +19,7 @@ from .scene import check_sensor_index, integrator_defaults, load_scene, scene_pa
 
 _BDPT_KEYS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
 _MLT_KEYS = ("mutations_per_pixel", "large_step_probability", "bootstrap_samples", "chains",
-             "large_step_mis", "multiplex")
+             "large_step_mis", "multiplex", "direct_samples")
 
 
 def _params(args, scene) -> dict:
