@@ -350,7 +350,7 @@ class MLTRenderer:
             s = gather(store.splats.items, dr.arange(mi.UInt32, count))
             splats = Records(pos=mi.Vector2f(s.pos), value=mi.Spectrum(s.value), lane=s.lane)
             if self.images is not None:
-                self.images.add(s.lane, s.s, 1, splats.value)
+                self.images.add(s.lane, s.s, 1, splats.value, pos=splats.pos)
         else:
             splats = Records(pos=dr.zeros(mi.Vector2f, 0), value=dr.zeros(mi.Spectrum, 0),
                              lane=dr.zeros(mi.UInt32, 0))

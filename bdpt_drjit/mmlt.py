@@ -54,7 +54,7 @@ import mitsuba as mi
 import numpy as np
 
 from . import pss
-from .mlt import BOOTSTRAP_LANES, Chains, Evaluation, MLTRenderer, chains_for_ess
+from .mlt import BOOTSTRAP_LANES, Chains, Evaluation, MLTRenderer, Records, chains_for_ess
 from .film import FilmAccumulator
 from .optimizer import luminance
 
@@ -136,19 +136,30 @@ class ChainStrategies:
 class StrategyLuminance:
     """A stand-in for strategies.StrategyImages (``ctx.images``): per lane, the
     luminance of each strategy's MIS-weighted contribution, in cells (k, s) for
-    k = 1 .. K, s = 0 .. k (cell (k(k+1) - 2) / 2 + s; CELLS(K) in all)."""
+    k = 1 .. K, s = 0 .. k (cell (k(k+1) - 2) / 2 + s; CELLS(K) in all).  Also the
+    records of the paths of lengths 1 .. DIRECT_LENGTH: ``direct`` per lane (camera
+    strategies, at the lane's film position) and ``direct_splats`` (the light image's,
+    ``pos`` given): the bootstrap's samples of the direct image."""
 
     def __init__(self, lanes: int, max_depth: int):
         self.cells = cells(max_depth)
         self.max_depth = max_depth
         self.values = dr.zeros(mi.Float, lanes * self.cells)
+        self.direct = dr.zeros(mi.Spectrum, lanes)
+        self.direct_splats = None
 
-    def add(self, lane, s, t, value) -> None:
+    def add(self, lane, s, t, value, pos=None) -> None:
         k = mi.UInt32(s) + t - 1
         y = luminance(value)
         active = (k >= 1) & (k <= self.max_depth) & (y != 0.0)
         index = mi.UInt32(lane) * self.cells + (k * (k + 1) - 2) // 2 + s
         dr.scatter_add(self.values, y, index, active)
+        direct = active & (k <= DIRECT_LENGTH)
+        if pos is None:                         # a camera strategy (t >= 2)
+            dr.scatter_add(self.direct, value, mi.UInt32(lane), direct)
+        else:                                   # the light image's records (t = 1)
+            self.direct_splats = Records(pos=pos, value=dr.select(direct, value, 0.0),
+                                         lane=mi.UInt32(lane))
 
     def add_layer(self, *args) -> None:
         raise NotImplementedError("mlt: no merging")
@@ -193,7 +204,6 @@ class MMLTRenderer(MLTRenderer):
         self.b_depths, self.chains_per_depth = None, None
         self.b_direct, self.direct_lanes = 0.0, 0
         super().__init__(scene, sensor=sensor, seed=seed, **params)
-        self.direct_film = FilmAccumulator(self.sensor.film(), coalesce=False)
 
     def _configure(self) -> None:
         if self.settings.max_depth < 1:
@@ -201,6 +211,8 @@ class MMLTRenderer(MLTRenderer):
                              "per path length; pbrt's default is 5), or use pssmlt")
         self.dims["tech_u"] = 1
         self.strategies = ChainStrategies(self.strategies)
+        # the direct image: the bootstrap's records of those lengths, then _direct's
+        self.direct_film = FilmAccumulator(self.sensor.film(), coalesce=False)
 
     def _evaluate_vectors(self, lanes: int, keys, identity: mi.UInt32, x: dict) -> Evaluation:
         """With the strategies set per lane (``set_lanes``): each lane's strategy
@@ -289,7 +301,11 @@ class MMLTRenderer(MLTRenderer):
             n = min(batch, count - start)
             ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, start)
             self.images = StrategyLuminance(n, depths)
-            self._evaluate_vectors(n, keys, ident, {name: None for name in self.dims})
+            ev = self._evaluate_vectors(n, keys, ident, {name: None for name in self.dims})
+            self.direct_film.put_light(ev.camera.pos, self.images.direct)
+            if self.images.direct_splats is not None:
+                self.direct_film.put_light(self.images.direct_splats.pos,
+                                           self.images.direct_splats.value)
             per_cell = self._cells(n)
             sums += np.bincount(k_of - 1, weights=per_cell.sum(axis=0), minlength=depths)
             for j, cells_j in enumerate((per_cell, per_cell[:, far])):
@@ -366,8 +382,9 @@ class MMLTRenderer(MLTRenderer):
 
     def _direct(self, i: int) -> None:
         """Iteration i's independent samples of the paths of lengths 1 .. DIRECT_LENGTH
-        (every strategy of them with its MIS weight, hashed primary samples), on their
-        own film: the image of those lengths is their records' mean (``tensor``)."""
+        (every strategy of them with its MIS weight, hashed primary samples, as the
+        bootstrap's samples' records of those lengths), on their own film: the image of
+        those lengths is their records' mean (``tensor``)."""
         n = self.direct_lanes
         self.strategies.set_lengths(dr.full(mi.UInt32, DIRECT_LENGTH, n), up_to=True)
         ev = self._evaluate_vectors(n, self._stream_keys(0xD1, i), dr.arange(mi.UInt32, n),
@@ -377,11 +394,12 @@ class MMLTRenderer(MLTRenderer):
                 self.direct_film.put_light(records.pos, records.value)
 
     def tensor(self) -> mi.TensorXf:
-        """The chains' image, plus the direct samples' (N / (samples so far))."""
+        """The chains' image, plus the direct samples' (N / (samples so far): the
+        bootstrap's and ``_direct``'s, the same estimator)."""
         image = super().tensor()
-        if self.direct_lanes and self.iterations_done:
-            image += self.direct_film.develop_light(
-                self.pixels / (self.direct_lanes * self.iterations_done))
+        if self.direct_lanes:
+            samples = self.bootstrap_samples + self.direct_lanes * self.iterations_done
+            image += self.direct_film.develop_light(self.pixels / samples)
         return image
 
     def _evaluate_proposal(self, keys, identity, y: dict) -> Evaluation:
