@@ -118,7 +118,7 @@ class Evaluation:
     f: mi.Float          # the target of each lane's sample
     camera: Records      # one per lane
     splats: Records      # the light image's records
-    rays: int
+    rays: mi.Float64     # rays traced (one number, on the device: no host sync)
 
 
 def _concat(a: Records, b: Records) -> Records:
@@ -162,7 +162,7 @@ class Chains:
         proposal's vectors (as ``vectors()``), ``dims`` their coordinates per chain."""
         for name, vector in y.items():
             element = dr.arange(mi.UInt32, dr.width(vector))
-            take = dr.gather(mi.Bool, accepted, element // dr.opaque(mi.UInt32, dims[name]))
+            take = dr.gather(mi.Bool, accepted, element // dims[name])
             setattr(self, name, dr.select(take, vector, getattr(self, name)))
         self.f = dr.select(accepted, ev.f, self.f)
         self.camera = Records(pos=dr.select(accepted, ev.camera.pos, self.camera.pos),
@@ -290,8 +290,10 @@ class MLTRenderer:
         self.dims = {"camera_u": CAMERA_START + PER_DEPTH * depths,
                      "light_u": LIGHT_START + PER_DEPTH * depths}
         self._capacity = [4, 5]          # pool records per light subpath, raised on overflow
-        self.iterations_done, self.time, self.rays = 0, 0.0, 0
-        self.acceptance = []             # mean acceptance per iteration
+        self.iterations_done, self.time = 0, 0.0
+        self._rays = dr.zeros(mi.Float64, 1)     # rays traced (read by ``rays``)
+        # mean acceptance per iteration, on the device (read by ``acceptance``)
+        self._acceptance = dr.zeros(mi.Float, 64)
         # sums of a and counts of proposals: small steps, large steps (no host sync)
         self._tally = dr.zeros(mi.Float, 4)
         self.start_states = 0            # distinct bootstrap samples the chains start on
@@ -309,6 +311,23 @@ class MLTRenderer:
 
     def _key(self, *values) -> mi.UInt32:
         return dr.opaque(mi.UInt32, _mix_seed(self.seed, *values))
+
+    @property
+    def rays(self) -> int:
+        """Rays traced so far (bootstrap included)."""
+        return int(self._rays.numpy()[0])
+
+    @property
+    def acceptance(self) -> list:
+        """The mean acceptance of each iteration's proposals (kept on the device until
+        read: the iterations make no host sync for it)."""
+        done = self.iterations_done if self.state is not None else 0
+        return [float(v) for v in self._acceptance.numpy()[:done]]
+
+    def last_acceptance(self) -> float:
+        """The last iteration's mean acceptance (0 before the first)."""
+        done = self.iterations_done if self.state is not None else 0
+        return float(self._acceptance[done - 1]) if done else 0.0
 
     @property
     def done(self) -> bool:
@@ -359,9 +378,9 @@ class MLTRenderer:
             dr.scatter_add(f, luminance(splats.value), splats.lane)
         camera = Records(pos=rays.pos, value=mi.Spectrum(cam.radiance),
                          lane=dr.arange(mi.UInt32, lanes))
-        totals = dr.sum(cam.rays) + dr.sum(light_rays)
+        totals = mi.Float64(dr.sum(cam.rays) + dr.sum(light_rays))
         dr.eval(f, camera, splats, totals)
-        return Evaluation(f=f, camera=camera, splats=splats, rays=int(totals[0]))
+        return Evaluation(f=f, camera=camera, splats=splats, rays=totals)
 
     # -- start-up ---------------------------------------------------------------------
     def bootstrap(self):
@@ -423,7 +442,8 @@ class MLTRenderer:
         ev = self.evaluate(lanes, lambda: tuple(
             pss.PSSSampler.make(lanes, key, identity, x[name], self.dims[name])
             for name, key in zip(("camera_u", "light_u"), keys)))
-        self.rays += ev.rays
+        self._rays = self._rays + ev.rays
+        dr.eval(self._rays)
         return ev
 
     # -- the chains ---------------------------------------------------------------------
@@ -458,7 +478,12 @@ class MLTRenderer:
         mean_a = dr.mean(a)
         self._count(a, large)
         x.accept(accepted, y, ev, self.dims)
-        self.acceptance.append(float(mean_a[0]))
+        if i >= dr.width(self._acceptance):      # grown by doubling (rarely)
+            grown = np.zeros(2 * dr.width(self._acceptance), dtype=np.float32)
+            grown[:i] = self._acceptance.numpy()[:i]
+            self._acceptance = mi.Float(grown)
+        dr.scatter(self._acceptance, mean_a, dr.opaque(mi.UInt32, i))
+        dr.eval(self._acceptance)
 
     def _evaluate_proposal(self, keys, identity: mi.UInt32, y: dict) -> Evaluation:
         """The path samples of the chains' proposals ``y``."""

@@ -65,7 +65,7 @@ from .optimizer import luminance
 # one strategy: on the diffuse box 54% of the brightness is the lamp seen directly,
 # which its chains sampled as a fraction of their states (benchmarks/RESULTS.md).
 DIRECT_LENGTH = 2
-DIRECT_SHARE = 0.05
+DIRECT_SHARE = 0.25
 MIN_DIRECT_LANES = 1024
 
 

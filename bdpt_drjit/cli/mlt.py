@@ -85,7 +85,7 @@ def run(args, stop) -> int:
             eprint("bdpt: %d/%d iterations, %.1f mutations per pixel, acceptance %.2f, %s"
                    % (renderer.iterations_done, renderer.iterations,
                       renderer.chains * renderer.iterations_done / renderer.pixels,
-                      renderer.acceptance[-1] if renderer.acceptance else 0.0, fmt_time(now)))
+                      renderer.last_acceptance(), fmt_time(now)))
         if renderer.done:
             break
         if stop.signal is not None:
