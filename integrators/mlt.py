@@ -51,7 +51,7 @@ variants, heterogeneous media, ``mis=lafortune``, and the BDPT budget parameters
      - Paths of 1 and 2 edges (emitters seen directly, direct illumination) by this
        many independent BDPT samples per pixel per iteration, and the chains only on
        longer paths; 0 = automatic: chains x the bootstrap's share of those lengths in
-       the brightness (a power of two, at least 1024) where that share is at least 5%,
+       the brightness (a power of two, at least 1024) where that share is at least 25%,
        else none; -1 = none (Default: 0; Mitsuba 0.6: ``directSamples``, per pixel in
        all)
    * - max_depth

@@ -206,7 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--direct-samples", type=int_at_least(-1), metavar="N",
                    help="mlt: paths of 1 and 2 edges by N independent samples per pixel per "
                    "iteration instead of the chains (default 0: automatic, where they carry "
-                   ">= 5%% of the light; -1: none)")
+                   ">= 25%% of the light; -1: none)")
     t.add_argument("--mutations-per-pixel", "--spp", dest="mutations_per_pixel",
                    type=int_at_least(1), help="mean mutations per pixel (default: the "
                    "scene's sample count)")
