@@ -54,115 +54,32 @@ import mitsuba as mi
 import numpy as np
 
 from . import pss
-from .mlt import BOOTSTRAP_LANES, Chains, Evaluation, MLTRenderer, Records, chains_for_ess
-from .film import FilmAccumulator
+from .chain_strategies import ChainStrategies  # noqa: F401  (mmlt.ChainStrategies)
+from .mlt import (BOOTSTRAP_LANES, DIRECT_LENGTH, DIRECT_SHARE, MIN_DIRECT_LANES,  # noqa: F401
+                  Chains, DirectLuminance, Evaluation, MLTRenderer, chains_for_ess)
 from .optimizer import luminance
 
-# Separate direct samples (``direct_samples``, MMLTRenderer._separate_direct): paths of up to
-# DIRECT_LENGTH edges (emitters seen directly, direct illumination) are rendered by
-# independent BDPT samples of those lengths where they carry at least DIRECT_SHARE of
-# the bootstrap's brightness, at least MIN_DIRECT_LANES per iteration.  A chain carries
-# one strategy: on the diffuse box 54% of the brightness is the lamp seen directly,
-# which its chains sampled as a fraction of their states (benchmarks/RESULTS.md).
-DIRECT_LENGTH = 2
-DIRECT_SHARE = 0.25
-MIN_DIRECT_LANES = 1024
 
 
-class ChainStrategies:
-    """The render's StrategySet with one strategy (s, t) per lane (``set_lanes``):
-    ``enabled``, ``stores`` and ``connects_at`` are masked per lane, and the walks stop
-    at y_{s-1} and z_{t-1}; everything else (the MIS weights' strategy set among it:
-    mis.Weights is built from the base) is the base's.  ``set_lanes(None, None)``:
-    every strategy, as the base (the bootstrap's full BDPT samples)."""
-
-    def __init__(self, base):
-        self.base = base
-        self.s = self.t = self.k = None
-        self.up_to = False
-
-    def __getattr__(self, name):
-        return getattr(self.base, name)
-
-    def set_lanes(self, s, t) -> None:
-        self.s, self.t = (None, None) if s is None else (mi.UInt32(s), mi.UInt32(t))
-        self.k, self.up_to = None, False
-        dr.eval(self.s, self.t)
-
-    def set_lengths(self, k, up_to: bool = False) -> None:
-        """Every strategy of path length k per lane (``multiplex="length"``); with
-        ``up_to``, of every length 1 .. k (the separate direct samples).  The walks
-        stop at the same vertices for both."""
-        self.s = self.t = None
-        self.k, self.up_to = mi.UInt32(k), up_to
-        dr.eval(self.k)
-
-    @property
-    def per_lane(self) -> bool:
-        return self.s is not None or self.k is not None
-
-    def enabled(self, s, t):
-        on = self.base.enabled(s, t)
-        if self.k is not None:
-            return on & ((s + t - 1 <= self.k) if self.up_to else (s + t - 1 == self.k))
-        return on if self.s is None else on & (self.s == s) & (self.t == t)
-
-    def stores(self, s):
-        on = self.base.stores(s)
-        if self.k is not None:              # (s, t >= 2) of length k: s <= k - 1
-            return on & (s + 1 <= self.k)
-        return on if self.s is None else on & (self.s == s) & (self.t >= 2)
-
-    def connects_at(self, t):
-        if self.k is not None:              # s = k + 1 - t >= 2
-            return t + 1 <= self.k
-        return True if self.s is None else (self.t == t) & (self.s >= 2)
-
-    def max_camera_vertices(self):
-        """z_{t-1}, the lane's last camera vertex (0: no camera walk, t = 1); z_k for
-        a length."""
-        if self.k is not None:
-            return mi.UInt32(self.k)
-        return self.base.max_camera_vertices() if self.s is None else self.t - 1
-
-    def max_light_vertices(self):
-        """y_{s-1}, the lane's last light vertex (0: only y_0, drawn whatever s);
-        y_{k-1} for a length."""
-        if self.k is not None:
-            return self.k - 1
-        return self.base.max_light_vertices() if self.s is None else dr.maximum(self.s, 1) - 1
-
-
-class StrategyLuminance:
+class StrategyLuminance(DirectLuminance):
     """A stand-in for strategies.StrategyImages (``ctx.images``): per lane, the
     luminance of each strategy's MIS-weighted contribution, in cells (k, s) for
-    k = 1 .. K, s = 0 .. k (cell (k(k+1) - 2) / 2 + s; CELLS(K) in all).  Also the
-    records of the paths of lengths 1 .. DIRECT_LENGTH: ``direct`` per lane (camera
-    strategies, at the lane's film position) and ``direct_splats`` (the light image's,
-    ``pos`` given): the bootstrap's samples of the direct image."""
+    k = 1 .. K, s = 0 .. k (cell (k(k+1) - 2) / 2 + s; CELLS(K) in all), and the
+    records of the direct lengths (DirectLuminance)."""
 
     def __init__(self, lanes: int, max_depth: int):
+        super().__init__(lanes)
         self.cells = cells(max_depth)
         self.max_depth = max_depth
         self.values = dr.zeros(mi.Float, lanes * self.cells)
-        self.direct = dr.zeros(mi.Spectrum, lanes)
-        self.direct_splats = None
 
     def add(self, lane, s, t, value, pos=None) -> None:
+        super().add(lane, s, t, value, pos)
         k = mi.UInt32(s) + t - 1
         y = luminance(value)
         active = (k >= 1) & (k <= self.max_depth) & (y != 0.0)
         index = mi.UInt32(lane) * self.cells + (k * (k + 1) - 2) // 2 + s
         dr.scatter_add(self.values, y, index, active)
-        direct = active & (k <= DIRECT_LENGTH)
-        if pos is None:                         # a camera strategy (t >= 2)
-            dr.scatter_add(self.direct, value, mi.UInt32(lane), direct)
-        else:                                   # the light image's records (t = 1)
-            self.direct_splats = Records(pos=pos, value=dr.select(direct, value, 0.0),
-                                         lane=mi.UInt32(lane))
-
-    def add_layer(self, *args) -> None:
-        raise NotImplementedError("mlt: no merging")
 
 
 def cells(max_depth: int) -> int:
@@ -202,7 +119,6 @@ class MMLTRenderer(MLTRenderer):
 
     def __init__(self, scene: mi.Scene, sensor=0, seed: int = 0, **params):
         self.b_depths, self.chains_per_depth = None, None
-        self.b_direct, self.direct_lanes = 0.0, 0
         super().__init__(scene, sensor=sensor, seed=seed, **params)
 
     def _configure(self) -> None:
@@ -210,9 +126,7 @@ class MMLTRenderer(MLTRenderer):
             raise ValueError("mlt: needs a finite max_depth >= 1 (MMLT runs its chains "
                              "per path length; pbrt's default is 5), or use pssmlt")
         self.dims["tech_u"] = 1
-        self.strategies = ChainStrategies(self.strategies)
-        # the direct image: the bootstrap's records of those lengths, then _direct's
-        self.direct_film = FilmAccumulator(self.sensor.film(), coalesce=False)
+
 
     def _evaluate_vectors(self, lanes: int, keys, identity: mi.UInt32, x: dict) -> Evaluation:
         """With the strategies set per lane (``set_lanes``): each lane's strategy
@@ -256,7 +170,7 @@ class MMLTRenderer(MLTRenderer):
         f_np, square = targets[separate]
         if separate:
             self.b_depths[:DIRECT_LENGTH] = 0.0
-        b_chains = float(self.b_depths.sum())
+        b_chains = self.b_chains = float(self.b_depths.sum())
         if self.automatic_chains:       # the effective sample size of the cells (k, s, u)
             ess = (b_chains * self.bootstrap_samples) ** 2 / square if square > 0.0 else 0.0
             self.chains = chains_for_ess(self.chains, ess)
@@ -265,25 +179,6 @@ class MMLTRenderer(MLTRenderer):
         if b_chains <= 0.0:                     # direct light only
             return b, None
         return b, self._start(keys, self._resample(f_np))
-
-    def _separate_direct(self, b: float) -> bool:
-        """Whether paths of lengths 1 .. DIRECT_LENGTH are rendered by independent
-        samples instead of the chains (Mitsuba 0.6's ``directSamples``): where
-        ``direct_samples`` > 0, or (0) where they carry at least DIRECT_SHARE of the
-        brightness b (else the chains render every length).  Either way the image's
-        expectation is the same: the chains' target then lacks those lengths."""
-        if self.direct_samples < 0 or self.settings.max_depth <= DIRECT_LENGTH:
-            return False
-        return self.direct_samples > 0 or self.b_direct >= DIRECT_SHARE * b
-
-    def _direct_lanes(self, b: float) -> int:
-        """Direct samples per iteration: ``direct_samples`` per pixel, or (0) chains x
-        their share b_direct / b rounded down to a power of two, at least
-        MIN_DIRECT_LANES."""
-        if self.direct_samples > 0:
-            return self.direct_samples * self.pixels
-        lanes = max(MIN_DIRECT_LANES, int(self.chains * self.b_direct / b))
-        return 1 << (lanes.bit_length() - 1)
 
     def _bootstrap_targets(self, keys, count: int):
         """Per bootstrap sample 0 .. count - 1 (every coordinate hashed), with and
@@ -302,10 +197,7 @@ class MMLTRenderer(MLTRenderer):
             ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, start)
             self.images = StrategyLuminance(n, depths)
             ev = self._evaluate_vectors(n, keys, ident, {name: None for name in self.dims})
-            self.direct_film.put_light(ev.camera.pos, self.images.direct)
-            if self.images.direct_splats is not None:
-                self.direct_film.put_light(self.images.direct_splats.pos,
-                                           self.images.direct_splats.value)
+            self._put_direct(ev)
             per_cell = self._cells(n)
             sums += np.bincount(k_of - 1, weights=per_cell.sum(axis=0), minlength=depths)
             for j, cells_j in enumerate((per_cell, per_cell[:, far])):
@@ -374,34 +266,6 @@ class MMLTRenderer(MLTRenderer):
             scale=dr.gather(mi.Float, mi.Float(np.append(0.0, c_k)), depth),
             b_depth=dr.gather(mi.Float, mi.Float(np.append(0.0, self.b_depths)), depth), **x)
 
-    def _iterate(self, i: int) -> None:
-        if self.state is not None:
-            super()._iterate(i)
-        if self.direct_lanes:
-            self._direct(i)
-
-    def _direct(self, i: int) -> None:
-        """Iteration i's independent samples of the paths of lengths 1 .. DIRECT_LENGTH
-        (every strategy of them with its MIS weight, hashed primary samples, as the
-        bootstrap's samples' records of those lengths), on their own film: the image of
-        those lengths is their records' mean (``tensor``)."""
-        n = self.direct_lanes
-        self.strategies.set_lengths(dr.full(mi.UInt32, DIRECT_LENGTH, n), up_to=True)
-        ev = self._evaluate_vectors(n, self._stream_keys(0xD1, i), dr.arange(mi.UInt32, n),
-                                    {name: None for name in self.dims})
-        for records in (ev.camera, ev.splats):
-            if dr.width(records.lane):
-                self.direct_film.put_light(records.pos, records.value)
-
-    def tensor(self) -> mi.TensorXf:
-        """The chains' image, plus the direct samples' (N / (samples so far): the
-        bootstrap's and ``_direct``'s, the same estimator)."""
-        image = super().tensor()
-        if self.direct_lanes:
-            samples = self.bootstrap_samples + self.direct_lanes * self.iterations_done
-            image += self.direct_film.develop_light(self.pixels / samples)
-        return image
-
     def _evaluate_proposal(self, keys, identity, y: dict) -> Evaluation:
         return self._evaluate_chains(keys, identity, y, self.state.depth)
 
@@ -415,8 +279,6 @@ class MMLTRenderer(MLTRenderer):
         if self.chains_per_depth is not None:
             res.stats["b_depths"] = [float(v) for v in self.b_depths]
             res.stats["chains_per_depth"] = [int(v) for v in self.chains_per_depth]
-        res.stats["b_direct"] = self.b_direct
-        res.stats["direct_samples_per_iteration"] = self.direct_lanes
         return res
 
 
