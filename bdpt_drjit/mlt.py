@@ -28,6 +28,13 @@ chain's states by the balance heuristic (Kelemen 2002, sec. 4; pss.py): dark reg
 get their noise from the large steps' rate instead of from rare chain visits, and the
 sum is b N in expectation only.
 
+Direct light apart (``direct_samples``, Mitsuba 0.6's ``directSamples``): where paths
+of 1 and 2 edges carry at least DIRECT_SHARE of b, each iteration also renders
+independent BDPT samples of only those lengths (ChainStrategies.set_lengths with
+``up_to``) onto a film of their own, which also holds the bootstrap's records of those
+lengths, and the chains' target f lacks them (``set_past``): the image is the sum of
+the two estimates, whose expectations are the two parts of the image.
+
 Chain state stays in Dr.Jit arrays (``Chains``): the two streams' vectors, f(x), the
 camera record and the current state's splats (a list compacted each iteration).
 Every per-iteration value (keys, the large-step probability) is opaque: an iteration

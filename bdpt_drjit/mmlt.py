@@ -41,6 +41,9 @@ mutations per pixel) pbrt's way started the chains on 4704 distinct samples and 
 relMSE 0.55, this one 48337 and 0.059.  Lanes are then sorted by k and s, so a SIMD
 packet's lanes walk subpaths of like lengths.
 
+With separate direct samples (mlt.py), b_1 and b_2 go to them: the chains start on
+cells of length 3 up only, and c_k of k <= 2 is 0.
+
 ``multiplex="length"``: a chain fixes only its length k and evaluates every strategy
 of it with its MIS weight, f_k(u) = Y(sum_s w_{s,t} C_{s,t}(u)) (the narrower form of
 the issue's "at least the path length"; u_c is then unused).
