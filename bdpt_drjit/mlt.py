@@ -28,6 +28,13 @@ chain's states by the balance heuristic (Kelemen 2002, sec. 4; pss.py): dark reg
 get their noise from the large steps' rate instead of from rare chain visits, and the
 sum is b N in expectation only.
 
+Direct light apart (``direct_samples``, Mitsuba 0.6's ``directSamples``): where paths
+of 1 and 2 edges carry at least DIRECT_SHARE of b, each iteration also renders
+independent BDPT samples of only those lengths (ChainStrategies.set_lengths with
+``up_to``) onto a film of their own, which also holds the bootstrap's records of those
+lengths, and the chains' target f lacks them (``set_past``): the image is the sum of
+the two estimates, whose expectations are the two parts of the image.
+
 Chain state stays in Dr.Jit arrays (``Chains``): the two streams' vectors, f(x), the
 camera record and the current state's splats (a list compacted each iteration).
 Every per-iteration value (keys, the large-step probability) is opaque: an iteration
@@ -45,6 +52,7 @@ import numpy as np
 from . import camera as camera_stage
 from . import pss, support
 from .budgets import BDPT
+from .chain_strategies import ChainStrategies
 from .emitters import Emitters
 from .film import FilmAccumulator
 from .media import Media
@@ -66,7 +74,8 @@ PER_DEPTH, CAMERA_START, LIGHT_START = 6, 6, 7
 # mutations_per_pixel 0: the sensor's sample count; chains and bootstrap_samples 0:
 # automatic.
 MLT_PARAMS = {"mutations_per_pixel": 0, "large_step_probability": 0.3,
-              "bootstrap_samples": 0, "chains": 0, "large_step_mis": True}
+              "bootstrap_samples": 0, "chains": 0, "large_step_mis": True,
+              "direct_samples": 0}
 # MMLT's own (mmlt.py): what a chain fixes besides its path length: "strategy" (its
 # (s, t) from a stream of its own, Hachisuka 2014, pbrt) or "length" (every strategy
 # of its length); and its default large-step probability, 0.1 (pbrt's is 0.3): an
@@ -103,6 +112,18 @@ MIN_CHAINS = 4096
 ESS_CHAINS = 2.0
 BOOTSTRAP_LANES = 1 << 16       # lanes of a bootstrap batch (at least the chains)
 BDPT_PARAMS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
+# Separate direct samples (``direct_samples``, MLTRenderer._separate_direct): paths of up to
+# DIRECT_LENGTH edges (emitters seen directly, direct illumination) are rendered by
+# independent BDPT samples of those lengths where they carry at least DIRECT_SHARE of
+# the bootstrap's brightness, at least MIN_DIRECT_LANES per iteration (Mitsuba 0.6's
+# pssmlt renders them apart by default too).  On the diffuse box 77% of the
+# brightness is there (54% the lamp seen directly), which the chains spent their
+# states on (an MMLT chain carries one strategy); on the door (0.05 gap: 5.6%, seen
+# through the gap) separating them gave 1.07x the default bdpt's relMSE against 0.93x
+# (benchmarks/RESULTS.md).
+DIRECT_LENGTH = 2
+DIRECT_SHARE = 0.25
+MIN_DIRECT_LANES = 1024
 
 
 @dataclass
@@ -118,7 +139,7 @@ class Evaluation:
     f: mi.Float          # the target of each lane's sample
     camera: Records      # one per lane
     splats: Records      # the light image's records
-    rays: int
+    rays: mi.Float64     # rays traced (one number, on the device: no host sync)
 
 
 def _concat(a: Records, b: Records) -> Records:
@@ -143,6 +164,32 @@ def _select_records(records: Records, keep: mi.Bool) -> Records:
         pos=dr.zeros(mi.Vector2f, 0), value=dr.zeros(mi.Spectrum, 0), lane=dr.zeros(mi.UInt32, 0))
 
 
+class DirectLuminance:
+    """A stand-in for strategies.StrategyImages (``ctx.images``) in the bootstrap: per
+    lane, the luminance of the strategies of paths of 1 .. DIRECT_LENGTH edges
+    (``y``), and their records: ``direct`` per lane (camera strategies, at the lane's
+    film position) and ``direct_splats`` (the light image's, ``pos`` given), the
+    bootstrap's samples of the direct image."""
+
+    def __init__(self, lanes: int):
+        self.y = dr.zeros(mi.Float, lanes)
+        self.direct = dr.zeros(mi.Spectrum, lanes)
+        self.direct_splats = None
+
+    def add(self, lane, s, t, value, pos=None) -> None:
+        k = mi.UInt32(s) + t - 1
+        direct = (k >= 1) & (k <= DIRECT_LENGTH)
+        dr.scatter_add(self.y, luminance(value), mi.UInt32(lane), direct)
+        if pos is None:                         # a camera strategy (t >= 2)
+            dr.scatter_add(self.direct, value, mi.UInt32(lane), direct)
+        else:                                   # the light image's records (t = 1)
+            self.direct_splats = Records(pos=pos, value=dr.select(direct, value, 0.0),
+                                         lane=mi.UInt32(lane))
+
+    def add_layer(self, *args) -> None:
+        raise NotImplementedError("mlt: no merging")
+
+
 @dataclass
 class Chains:
     """Every chain's current state x: its two primary sample vectors (chains x D), f(x)
@@ -162,7 +209,7 @@ class Chains:
         proposal's vectors (as ``vectors()``), ``dims`` their coordinates per chain."""
         for name, vector in y.items():
             element = dr.arange(mi.UInt32, dr.width(vector))
-            take = dr.gather(mi.Bool, accepted, element // dr.opaque(mi.UInt32, dims[name]))
+            take = dr.gather(mi.Bool, accepted, element // dims[name])
             setattr(self, name, dr.select(take, vector, getattr(self, name)))
         self.f = dr.select(accepted, ev.f, self.f)
         self.camera = Records(pos=dr.select(accepted, ev.camera.pos, self.camera.pos),
@@ -226,6 +273,9 @@ def mlt_settings(values: dict, name: str = "pssmlt") -> tuple[dict, dict]:
     if mlt.get("multiplex", "strategy") not in MULTIPLEX:
         raise ValueError("%s: multiplex must be one of %s, got %r"
                          % (name, ", ".join(MULTIPLEX), mlt["multiplex"]))
+    if mlt.get("direct_samples", 0) < -1:
+        raise ValueError("%s: direct_samples must be >= -1 (-1: none, 0: automatic), got %d"
+                         % (name, mlt["direct_samples"]))
     if min(mlt["mutations_per_pixel"], mlt["bootstrap_samples"], mlt["chains"]) < 0:
         raise ValueError("%s: mutations_per_pixel, bootstrap_samples and chains must be "
                          ">= 0 (0: the sample count; automatic)" % name)
@@ -258,6 +308,7 @@ class MLTRenderer:
         check_variant()
         mlt, bdpt = mlt_settings(params, self.name)
         self.multiplex = mlt.get("multiplex")
+        self.direct_samples = mlt["direct_samples"]
         self.sensor = camera_stage.select_sensor(scene, sensor)
         self.camera = camera_stage.make_camera(self.sensor)
         self.scene, self.seed = scene, int(seed)
@@ -266,9 +317,10 @@ class MLTRenderer:
         self.emitters = Emitters(scene)
         self.media = Media(scene, self.sensor)
         _refuse(scene, self.media, self.settings, self.name)
-        self.strategies = StrategySet(self.settings, self.emitters.count > 0, BDPT,
-                                      self.camera.light_image_possible)
-        self.weights = Weights(self.settings.mis, self.strategies)
+        base = StrategySet(self.settings, self.emitters.count > 0, BDPT,
+                           self.camera.light_image_possible)
+        self.weights = Weights(self.settings.mis, base)     # every strategy's weight
+        self.strategies = ChainStrategies(base)             # per evaluation: which records
         self.weights.set_rates(1.0, 1.0)
         film = self.sensor.film()
         self.pixels = int(dr.prod(film.crop_size()))
@@ -286,12 +338,18 @@ class MLTRenderer:
         self.dims = {"camera_u": CAMERA_START + PER_DEPTH * depths,
                      "light_u": LIGHT_START + PER_DEPTH * depths}
         self._capacity = [4, 5]          # pool records per light subpath, raised on overflow
-        self.iterations_done, self.time, self.rays = 0, 0.0, 0
-        self.acceptance = []             # mean acceptance per iteration
+        self.iterations_done, self.time = 0, 0.0
+        self._rays = dr.zeros(mi.Float64, 1)     # rays traced (read by ``rays``)
+        # mean acceptance per iteration, on the device (read by ``acceptance``)
+        self._acceptance = dr.zeros(mi.Float, 64)
         # sums of a and counts of proposals: small steps, large steps (no host sync)
         self._tally = dr.zeros(mi.Float, 4)
         self.start_states = 0            # distinct bootstrap samples the chains start on
         self.images = None               # strategy records of an evaluation (mmlt.py)
+        # the direct image (direct_samples): the bootstrap's records of those lengths,
+        # then _direct's; b_chains the chains' brightness (b less b_direct if apart)
+        self.b_direct, self.b_chains, self.direct_lanes = 0.0, 0.0, 0
+        self.direct_film = FilmAccumulator(film, coalesce=False)
         self._configure()
         start = time.perf_counter()
         self.b, self.state = self.bootstrap()
@@ -305,6 +363,23 @@ class MLTRenderer:
 
     def _key(self, *values) -> mi.UInt32:
         return dr.opaque(mi.UInt32, _mix_seed(self.seed, *values))
+
+    @property
+    def rays(self) -> int:
+        """Rays traced so far (bootstrap included)."""
+        return int(self._rays.numpy()[0])
+
+    @property
+    def acceptance(self) -> list:
+        """The mean acceptance of each iteration's proposals (kept on the device until
+        read: the iterations make no host sync for it)."""
+        done = self.iterations_done if self.state is not None else 0
+        return [float(v) for v in self._acceptance.numpy()[:done]]
+
+    def last_acceptance(self) -> float:
+        """The last iteration's mean acceptance (0 before the first)."""
+        done = self.iterations_done if self.state is not None else 0
+        return float(self._acceptance[done - 1]) if done else 0.0
 
     @property
     def done(self) -> bool:
@@ -346,7 +421,7 @@ class MLTRenderer:
             s = gather(store.splats.items, dr.arange(mi.UInt32, count))
             splats = Records(pos=mi.Vector2f(s.pos), value=mi.Spectrum(s.value), lane=s.lane)
             if self.images is not None:
-                self.images.add(s.lane, s.s, 1, splats.value)
+                self.images.add(s.lane, s.s, 1, splats.value, pos=splats.pos)
         else:
             splats = Records(pos=dr.zeros(mi.Vector2f, 0), value=dr.zeros(mi.Spectrum, 0),
                              lane=dr.zeros(mi.UInt32, 0))
@@ -355,9 +430,9 @@ class MLTRenderer:
             dr.scatter_add(f, luminance(splats.value), splats.lane)
         camera = Records(pos=rays.pos, value=mi.Spectrum(cam.radiance),
                          lane=dr.arange(mi.UInt32, lanes))
-        totals = dr.sum(cam.rays) + dr.sum(light_rays)
+        totals = mi.Float64(dr.sum(cam.rays) + dr.sum(light_rays))
         dr.eval(f, camera, splats, totals)
-        return Evaluation(f=f, camera=camera, splats=splats, rays=int(totals[0]))
+        return Evaluation(f=f, camera=camera, splats=splats, rays=totals)
 
     # -- start-up ---------------------------------------------------------------------
     def bootstrap(self):
@@ -370,37 +445,81 @@ class MLTRenderer:
         if self.emitters.count == 0:            # black (support.check warned)
             return 0.0, None
         keys = self._stream_keys(0xB0)
-        f_np = self._bootstrap_targets(keys, self.bootstrap_samples)
+        f_np, f_direct = self._bootstrap_targets(keys, self.bootstrap_samples)
         b = float(f_np.mean())
         if b <= 0.0:
             return 0.0, None
+        self.b_direct = float(f_direct.mean())
+        separate = self._separate_direct(b)
+        if separate:                            # the chains' target: longer paths only
+            f_np = np.maximum(f_np - f_direct, 0.0)
+        self.b_chains = float(f_np.mean())
         if self.automatic_chains:
             self.chains = chains_for_bootstrap(self.chains, f_np)
             self.iterations = max(1, round(self.mutations / self.chains))
+        self.direct_lanes = self._direct_lanes(b) if separate else 0
+        if self.b_chains <= 0.0:                # direct light only
+            return b, None
         pick = self._resample(f_np)
         x = {name: pss.hashed_vectors(key, pick, self.dims[name])
              for name, key in zip(self.dims, keys)}
         dr.eval(x)
+        self.strategies.set_past(DIRECT_LENGTH if self.direct_lanes else 0)
         ev = self._evaluate_vectors(self.chains, keys, pick, x)
         return b, Chains(f=ev.f, camera=ev.camera, splats=ev.splats, **x)
+
+    def _separate_direct(self, b: float) -> bool:
+        """Whether paths of lengths 1 .. DIRECT_LENGTH are rendered by independent
+        samples instead of the chains (Mitsuba 0.6's ``directSamples``): where
+        ``direct_samples`` > 0, or (0) where they carry at least DIRECT_SHARE of the
+        brightness b (else the chains render every length).  Either way the image's
+        expectation is the same: the chains' target then lacks those lengths."""
+        if self.direct_samples < 0 or 0 <= self.settings.max_depth <= DIRECT_LENGTH:
+            return False
+        return self.direct_samples > 0 or self.b_direct >= DIRECT_SHARE * b
+
+    def _direct_lanes(self, b: float) -> int:
+        """Direct samples per iteration: ``direct_samples`` per pixel, or (0) chains x
+        their share b_direct / b rounded down to a power of two, at least
+        MIN_DIRECT_LANES."""
+        if self.direct_samples > 0:
+            return self.direct_samples * self.pixels
+        lanes = max(MIN_DIRECT_LANES, int(self.chains * self.b_direct / b))
+        return 1 << (lanes.bit_length() - 1)
+
+    def _put_direct(self, ev: Evaluation) -> None:
+        """A bootstrap batch's records of the direct lengths (``self.images``, a
+        DirectLuminance) on the direct film."""
+        self.direct_film.put_light(ev.camera.pos, self.images.direct)
+        if self.images.direct_splats is not None:
+            self.direct_film.put_light(self.images.direct_splats.pos,
+                                       self.images.direct_splats.value)
 
     def _stream_keys(self, *values) -> tuple:
         """One opaque key per stream (``dims``'s order)."""
         return tuple(self._key(*values, i) for i in range(len(self.dims)))
 
-    def _bootstrap_targets(self, keys, count: int) -> np.ndarray:
+    def _bootstrap_targets(self, keys, count: int) -> tuple[np.ndarray, np.ndarray]:
         """f of bootstrap samples 0 .. count - 1 (every coordinate hashed from its
-        stream's key and the sample's number), in batches of BOOTSTRAP_LANES lanes."""
-        f_all = []
+        stream's key and the sample's number), in batches of BOOTSTRAP_LANES lanes, and
+        its part on paths of 1 .. DIRECT_LENGTH edges (their records on the direct
+        film)."""
+        f_all, direct_all = [], []
         batch = max(self.chains, BOOTSTRAP_LANES)
+        self.strategies.set_past(0)
         for start in range(0, count, batch):
             n = min(batch, count - start)
             ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, start)
+            self.images = DirectLuminance(n)
             ev = self._evaluate_vectors(n, keys, ident, {name: None for name in self.dims})
+            self._put_direct(ev)
             f_all.append(ev.f.numpy())
-        f_np = np.concatenate(f_all).astype(np.float64)
-        f_np[~np.isfinite(f_np)] = 0.0
-        return f_np
+            direct_all.append(self.images.y.numpy())
+        self.images = None
+        out = [np.concatenate(v).astype(np.float64) for v in (f_all, direct_all)]
+        for v in out:
+            v[~np.isfinite(v)] = 0.0
+        return out[0], np.minimum(out[1], out[0])
 
     def _resample(self, weights: np.ndarray) -> mi.UInt32:
         """``chains`` bootstrap samples drawn in proportion to ``weights``, stratified
@@ -419,7 +538,8 @@ class MLTRenderer:
         ev = self.evaluate(lanes, lambda: tuple(
             pss.PSSSampler.make(lanes, key, identity, x[name], self.dims[name])
             for name, key in zip(("camera_u", "light_u"), keys)))
-        self.rays += ev.rays
+        self._rays = self._rays + ev.rays
+        dr.eval(self._rays)
         return ev
 
     # -- the chains ---------------------------------------------------------------------
@@ -430,13 +550,31 @@ class MLTRenderer:
             return
         start = time.perf_counter()
         with dr.suspend_grad():
-            if self.state is not None:
-                self._iterate(self.iterations_done)
+            self._iterate(self.iterations_done)
             dr.sync_thread()
         self.iterations_done += 1
         self.time += time.perf_counter() - start
 
     def _iterate(self, i: int) -> None:
+        if self.state is not None:
+            self._step_chains(i)
+        if self.direct_lanes:
+            self._direct(i)
+
+    def _direct(self, i: int) -> None:
+        """Iteration i's independent samples of the paths of lengths 1 .. DIRECT_LENGTH
+        (every strategy of them with its MIS weight, hashed primary samples, as the
+        bootstrap's samples' records of those lengths), on their own film: the image of
+        those lengths is their records' mean (``tensor``)."""
+        n = self.direct_lanes
+        self.strategies.set_lengths(dr.full(mi.UInt32, DIRECT_LENGTH, n), up_to=True)
+        ev = self._evaluate_vectors(n, self._stream_keys(0xD1, i), dr.arange(mi.UInt32, n),
+                                    {name: None for name in self.dims})
+        for records in (ev.camera, ev.splats):
+            if dr.width(records.lane):
+                self.direct_film.put_light(records.pos, records.value)
+
+    def _step_chains(self, i: int) -> None:
         x, n = self.state, self.chains
         chain = dr.arange(mi.UInt32, n)
         step_key = self._key(0x17, i)
@@ -453,16 +591,23 @@ class MLTRenderer:
         mean_a = dr.mean(a)
         self._count(a, large)
         x.accept(accepted, y, ev, self.dims)
-        self.acceptance.append(float(mean_a[0]))
+        if i >= dr.width(self._acceptance):      # grown by doubling (rarely)
+            grown = np.zeros(2 * dr.width(self._acceptance), dtype=np.float32)
+            grown[:i] = self._acceptance.numpy()[:i]
+            self._acceptance = mi.Float(grown)
+        dr.scatter(self._acceptance, mean_a, dr.opaque(mi.UInt32, i))
+        dr.eval(self._acceptance)
 
     def _evaluate_proposal(self, keys, identity: mi.UInt32, y: dict) -> Evaluation:
-        """The path samples of the chains' proposals ``y``."""
+        """The path samples of the chains' proposals ``y`` (of the lengths past the
+        direct samples' where those are apart)."""
+        self.strategies.set_past(DIRECT_LENGTH if self.direct_lanes else 0)
         return self._evaluate_vectors(self.chains, keys, identity, y)
 
     def _record_weights(self, x: Chains, ev: Evaluation, a: mi.Float, large: mi.Bool):
         """The weights of the proposal's and the state's records (pss.py)."""
         p_mis = self.p_large if self.large_step_mis else 0.0
-        return pss.expected_value_weights(x.f, ev.f, a, dr.opaque(mi.Float, self.b), large,
+        return pss.expected_value_weights(x.f, ev.f, a, dr.opaque(mi.Float, self.b_chains), large,
                                           dr.opaque(mi.Float, p_mis))
 
     def _count(self, a: mi.Float, large: mi.Bool) -> None:
@@ -490,11 +635,19 @@ class MLTRenderer:
         self.film.put_light(records.pos, records.value * weight, weight > 0.0)
 
     # -- results ------------------------------------------------------------------------
-    def tensor(self) -> mi.TensorXf:
-        """The image so far: the film's weighted records times N / (chains x
+    def chains_tensor(self) -> mi.TensorXf:
+        """The chains' image so far: the film's weighted records times N / (chains x
         iterations)."""
         samples = max(self.chains * self.iterations_done, 1)
         return self.film.develop_light(self.pixels / samples)
+
+    def tensor(self) -> mi.TensorXf:
+        """The image so far: the chains', plus the direct samples' where apart."""
+        image = self.chains_tensor()
+        if self.direct_lanes:       # the bootstrap's and _direct's (the same estimator)
+            samples = self.bootstrap_samples + self.direct_lanes * self.iterations_done
+            image += self.direct_film.develop_light(self.pixels / samples)
+        return image
 
     def result(self) -> RenderResult:
         tensor = self.tensor()
@@ -510,6 +663,8 @@ class MLTRenderer:
                                    "bootstrap_samples": self.bootstrap_samples,
                                    "bootstrap_time": self.bootstrap_time,
                                    "start_states": self.start_states,
+                                   "b_direct": self.b_direct,
+                                   "direct_samples_per_iteration": self.direct_lanes,
                                    "acceptance": float(np.mean(self.acceptance))
                                    if self.acceptance else 0.0,
                                    "acceptance_small": self.step_acceptance()[0],

@@ -41,6 +41,9 @@ mutations per pixel) pbrt's way started the chains on 4704 distinct samples and 
 relMSE 0.55, this one 48337 and 0.059.  Lanes are then sorted by k and s, so a SIMD
 packet's lanes walk subpaths of like lengths.
 
+With separate direct samples (mlt.py), b_1 and b_2 go to them: the chains start on
+cells of length 3 up only, and c_k of k <= 2 is 0.
+
 ``multiplex="length"``: a chain fixes only its length k and evaluates every strategy
 of it with its MIS weight, f_k(u) = Y(sum_s w_{s,t} C_{s,t}(u)) (the narrower form of
 the issue's "at least the path length"; u_c is then unused).
@@ -54,90 +57,32 @@ import mitsuba as mi
 import numpy as np
 
 from . import pss
-from .mlt import BOOTSTRAP_LANES, Chains, Evaluation, MLTRenderer, chains_for_ess
+from .chain_strategies import ChainStrategies  # noqa: F401  (mmlt.ChainStrategies)
+from .mlt import (BOOTSTRAP_LANES, DIRECT_LENGTH, DIRECT_SHARE, MIN_DIRECT_LANES,  # noqa: F401
+                  Chains, DirectLuminance, Evaluation, MLTRenderer, chains_for_ess)
 from .optimizer import luminance
 
 
-class ChainStrategies:
-    """The render's StrategySet with one strategy (s, t) per lane (``set_lanes``):
-    ``enabled``, ``stores`` and ``connects_at`` are masked per lane, and the walks stop
-    at y_{s-1} and z_{t-1}; everything else (the MIS weights' strategy set among it:
-    mis.Weights is built from the base) is the base's.  ``set_lanes(None, None)``:
-    every strategy, as the base (the bootstrap's full BDPT samples)."""
 
-    def __init__(self, base):
-        self.base = base
-        self.s = self.t = self.k = None
-
-    def __getattr__(self, name):
-        return getattr(self.base, name)
-
-    def set_lanes(self, s, t) -> None:
-        self.s, self.t = (None, None) if s is None else (mi.UInt32(s), mi.UInt32(t))
-        self.k = None
-        dr.eval(self.s, self.t)
-
-    def set_lengths(self, k) -> None:
-        """Every strategy of path length k per lane (``multiplex="length"``)."""
-        self.s = self.t = None
-        self.k = mi.UInt32(k)
-        dr.eval(self.k)
-
-    @property
-    def per_lane(self) -> bool:
-        return self.s is not None or self.k is not None
-
-    def enabled(self, s, t):
-        on = self.base.enabled(s, t)
-        if self.k is not None:
-            return on & (s + t - 1 == self.k)
-        return on if self.s is None else on & (self.s == s) & (self.t == t)
-
-    def stores(self, s):
-        on = self.base.stores(s)
-        if self.k is not None:              # (s, t >= 2) of length k: s <= k - 1
-            return on & (s + 1 <= self.k)
-        return on if self.s is None else on & (self.s == s) & (self.t >= 2)
-
-    def connects_at(self, t):
-        if self.k is not None:              # s = k + 1 - t >= 2
-            return t + 1 <= self.k
-        return True if self.s is None else (self.t == t) & (self.s >= 2)
-
-    def max_camera_vertices(self):
-        """z_{t-1}, the lane's last camera vertex (0: no camera walk, t = 1); z_k for
-        a length."""
-        if self.k is not None:
-            return mi.UInt32(self.k)
-        return self.base.max_camera_vertices() if self.s is None else self.t - 1
-
-    def max_light_vertices(self):
-        """y_{s-1}, the lane's last light vertex (0: only y_0, drawn whatever s);
-        y_{k-1} for a length."""
-        if self.k is not None:
-            return self.k - 1
-        return self.base.max_light_vertices() if self.s is None else dr.maximum(self.s, 1) - 1
-
-
-class StrategyLuminance:
+class StrategyLuminance(DirectLuminance):
     """A stand-in for strategies.StrategyImages (``ctx.images``): per lane, the
     luminance of each strategy's MIS-weighted contribution, in cells (k, s) for
-    k = 1 .. K, s = 0 .. k (cell (k(k+1) - 2) / 2 + s; CELLS(K) in all)."""
+    k = 1 .. K, s = 0 .. k (cell (k(k+1) - 2) / 2 + s; CELLS(K) in all), and the
+    records of the direct lengths (DirectLuminance)."""
 
     def __init__(self, lanes: int, max_depth: int):
+        super().__init__(lanes)
         self.cells = cells(max_depth)
         self.max_depth = max_depth
         self.values = dr.zeros(mi.Float, lanes * self.cells)
 
-    def add(self, lane, s, t, value) -> None:
+    def add(self, lane, s, t, value, pos=None) -> None:
+        super().add(lane, s, t, value, pos)
         k = mi.UInt32(s) + t - 1
         y = luminance(value)
         active = (k >= 1) & (k <= self.max_depth) & (y != 0.0)
         index = mi.UInt32(lane) * self.cells + (k * (k + 1) - 2) // 2 + s
         dr.scatter_add(self.values, y, index, active)
-
-    def add_layer(self, *args) -> None:
-        raise NotImplementedError("mlt: no merging")
 
 
 def cells(max_depth: int) -> int:
@@ -184,7 +129,7 @@ class MMLTRenderer(MLTRenderer):
             raise ValueError("mlt: needs a finite max_depth >= 1 (MMLT runs its chains "
                              "per path length; pbrt's default is 5), or use pssmlt")
         self.dims["tech_u"] = 1
-        self.strategies = ChainStrategies(self.strategies)
+
 
     def _evaluate_vectors(self, lanes: int, keys, identity: mi.UInt32, x: dict) -> Evaluation:
         """With the strategies set per lane (``set_lanes``): each lane's strategy
@@ -213,45 +158,57 @@ class MMLTRenderer(MLTRenderer):
 
     def bootstrap(self):
         """b_k per path length from full BDPT samples (their strategies' luminances
-        summed per k: Rao-Blackwellized over the strategy stream), b = sum b_k, and
-        the chains' first states (``_start``)."""
+        summed per k: Rao-Blackwellized over the strategy stream), b = sum b_k, the
+        direct samples' plan (``_separate_direct``) and the chains' first states
+        (``_start``) on the lengths the chains render."""
         if self.emitters.count == 0:            # black (support.check warned)
             return 0.0, None
         keys = self._stream_keys(0xB0)
-        f_np, self.b_depths, square = self._bootstrap_targets(keys, self.bootstrap_samples)
+        targets, self.b_depths = self._bootstrap_targets(keys, self.bootstrap_samples)
         b = float(self.b_depths.sum())
         if b <= 0.0:
             return 0.0, None
+        self.b_direct = float(self.b_depths[:DIRECT_LENGTH].sum())
+        separate = self._separate_direct(b)
+        f_np, square = targets[separate]
+        if separate:
+            self.b_depths[:DIRECT_LENGTH] = 0.0
+        b_chains = self.b_chains = float(self.b_depths.sum())
         if self.automatic_chains:       # the effective sample size of the cells (k, s, u)
-            ess = (b * self.bootstrap_samples) ** 2 / square if square > 0.0 else 0.0
+            ess = (b_chains * self.bootstrap_samples) ** 2 / square if square > 0.0 else 0.0
             self.chains = chains_for_ess(self.chains, ess)
             self.iterations = max(1, round(self.mutations / self.chains))
+        self.direct_lanes = self._direct_lanes(b) if separate else 0
+        if b_chains <= 0.0:                     # direct light only
+            return b, None
         return b, self._start(keys, self._resample(f_np))
 
     def _bootstrap_targets(self, keys, count: int):
-        """f of full BDPT samples 0 .. count - 1 (every coordinate hashed), the
-        mean per path length of their strategies' luminances, b_k, and the sum of
-        their squares (the start states are cells (k, s) of samples: their effective
-        sample size (sum L)^2 / sum L^2 is at least that of f, whose cross terms
-        it lacks)."""
+        """Per bootstrap sample 0 .. count - 1 (every coordinate hashed), with and
+        without the lengths 1 .. DIRECT_LENGTH (``[separate]``): its strategies'
+        luminance summed, f, and the sum of their squares (the start states are cells
+        (k, s) of samples: their effective sample size (sum L)^2 / sum L^2 is at least
+        that of f, whose cross terms it lacks); and the mean per path length, b_k."""
         self.strategies.set_lanes(None, None)
         depths = self.settings.max_depth
-        f_all, sums, square = [], np.zeros(depths), 0.0
+        f_all, sums, squares = ([], []), np.zeros(depths), np.zeros(2)
         batch = max(self.chains, BOOTSTRAP_LANES)
         k_of, _ = self._cell_table()
+        far = k_of > DIRECT_LENGTH
         for start in range(0, count, batch):
             n = min(batch, count - start)
             ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, start)
             self.images = StrategyLuminance(n, depths)
             ev = self._evaluate_vectors(n, keys, ident, {name: None for name in self.dims})
+            self._put_direct(ev)
             per_cell = self._cells(n)
             sums += np.bincount(k_of - 1, weights=per_cell.sum(axis=0), minlength=depths)
-            square += float(np.sum(per_cell * per_cell))
-            f_all.append(ev.f.numpy())
+            for j, cells_j in enumerate((per_cell, per_cell[:, far])):
+                squares[j] += float(np.sum(cells_j * cells_j))
+                f_all[j].append(cells_j.sum(axis=1))
         self.images = None
-        f_np = np.concatenate(f_all).astype(np.float64)
-        f_np[~np.isfinite(f_np)] = 0.0
-        return f_np, sums / count, square
+        targets = [(np.concatenate(f_all[j]), squares[j]) for j in range(2)]
+        return targets, sums / count
 
     def _cell_table(self):
         """(k, s) of the start states' cells: a strategy each, or (``multiplex="length"``)
@@ -285,11 +242,13 @@ class MMLTRenderer(MLTRenderer):
         self._evaluate_vectors(n, keys, pick, x)
         per_cell = self._cells(n)
         self.images = None
+        k_of, s_of = self._cell_table()
+        if self.direct_lanes:                   # those lengths: the direct samples'
+            per_cell[:, k_of <= DIRECT_LENGTH] = 0.0
         cum = np.cumsum(per_cell, axis=1)
         chain = dr.arange(mi.UInt32, n)
         u = pss.hash_uniform(self._key(0xB2), chain, 0).numpy() * cum[:, -1]
         cell = np.minimum((cum <= u[:, None]).sum(axis=1), per_cell.shape[1] - 1)
-        k_of, s_of = self._cell_table()
         order = np.lexsort((s_of[cell], k_of[cell]))
         k, s = k_of[cell][order], s_of[cell][order]
         jitter = pss.hash_uniform(self._key(0xB2), chain, 1).numpy()

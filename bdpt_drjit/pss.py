@@ -83,8 +83,10 @@ def propose(x: mi.Float, dims: int, large: mi.Bool, key) -> mi.Float:
     iteration's numbers."""
     n = dr.width(x)
     element = dr.arange(mi.UInt32, n)
-    d = dr.opaque(mi.UInt32, dims)
-    chain_large = dr.gather(mi.Bool, large, element // d)
+    # dims a literal (fixed by max_depth, not per seed): LLVM divides by a constant
+    # with a multiply and shift; an opaque divisor was a per-lane division (the
+    # proposals and acceptances over chains x dims numbers were a third of an iteration)
+    chain_large = dr.gather(mi.Bool, large, element // dims)
     bits = hash_bits(key, element, 0)
     u = mi.Float(bits >> 8) * (1.0 / (1 << 24))
     u_sign = dr.select((bits & 1) == 0, 0.0, 1.0)      # a bit apart from u's 24
@@ -96,8 +98,7 @@ def hashed_vectors(key, identity: mi.UInt32, dims: int) -> mi.Float:
     ``key`` gives lane ``identity``: chains x dims, row per entry of ``identity``."""
     n = dr.width(identity) * dims
     element = dr.arange(mi.UInt32, n)
-    d = dr.opaque(mi.UInt32, dims)
-    return hash_uniform(key, dr.gather(mi.UInt32, identity, element // d), element % d)
+    return hash_uniform(key, dr.gather(mi.UInt32, identity, element // dims), element % dims)
 
 
 class _Source:

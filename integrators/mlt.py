@@ -47,6 +47,13 @@ variants, heterogeneous media, ``mis=lafortune``, and the BDPT budget parameters
      - What a chain fixes besides its path length: ``strategy`` (its (s, t), from a
        stream of its own: Hachisuka 2014, pbrt) or ``length`` (every strategy of its
        length, each with its MIS weight) (Default: strategy)
+   * - direct_samples
+     - Paths of 1 and 2 edges (emitters seen directly, direct illumination) by this
+       many independent BDPT samples per pixel per iteration, and the chains only on
+       longer paths; 0 = automatic: chains x the bootstrap's share of those lengths in
+       the brightness (a power of two, at least 1024) where that share is at least 25%,
+       else none; -1 = none (Default: 0; Mitsuba 0.6: ``directSamples``, per pixel in
+       all)
    * - max_depth
      - Longest path in edges, finite (Default: none: must be given)
    * - rr_depth, mis, light_image, hide_emitters

@@ -41,6 +41,13 @@ sample and one light subpath).
    * - chains
      - Markov chains (lanes); 0 = min(262144, max(4096, mutations / 16)), at
        most 2x the bootstrap's effective sample size (Default: 0)
+   * - direct_samples
+     - Paths of 1 and 2 edges (emitters seen directly, direct illumination) by this
+       many independent BDPT samples per pixel per iteration, and the chains only on
+       longer paths; 0 = automatic: chains x the bootstrap's share of those lengths in
+       the brightness (a power of two, at least 1024) where that share is at least 25%,
+       else none; -1 = none (Default: 0; Mitsuba 0.6: ``directSamples``, per pixel in
+       all)
    * - max_depth, rr_depth, mis, light_image, hide_emitters
      - As for ``bdpt``
 """
@@ -54,9 +61,8 @@ from integrators.bdpt import GRADIENT_ERROR, NESTING_ERROR, seed_value
 # Mitsuba 0.6's names of the same parameters.
 LEGACY = {"pLarge": "large_step_probability", "luminanceSamples": "bootstrap_samples",
           "maxDepth": "max_depth", "rrDepth": "rr_depth", "hideEmitters": "hide_emitters",
-          "lightImage": "light_image"}
+          "lightImage": "light_image", "directSamples": "direct_samples"}
 LEGACY_REFUSED = {
-    "directSamples": "direct light is rendered by the chains with the rest (set nothing)",
     "twoStage": "two-stage MLT is not implemented",
     "bidirectional": "the chains' samples are always BDPT samples",
 }

@@ -69,10 +69,11 @@ def test_other_steps_match_bdpt(p_large, mis, kind):
 
 @pytest.mark.parametrize("kind", list(KINDS))
 def test_image_sum_is_b_at_every_iteration(kind):
-    """mlt: sum over chains of c_k = sum_k n_k b_k N / n_k = b N (without Kelemen's MIS)."""
+    """mlt: sum over chains of c_k = sum_k n_k b_k N / n_k = b N (without Kelemen's MIS;
+    without the separate direct samples: test_direct_samples)."""
     scene = _box()
     r = KINDS[kind][1](scene, seed=3, mutations_per_pixel=8, bootstrap_samples=8192,
-                       chains=512, max_depth=5, large_step_mis=False)
+                       chains=512, max_depth=5, large_step_mis=False, direct_samples=-1)
     assert r.b > 0
     while not r.done:
         r.run_iteration()
@@ -80,6 +81,46 @@ def test_image_sum_is_b_at_every_iteration(kind):
         assert abs(img.mean() / r.b - 1.0) < 1e-4, (img.mean(), r.b)
     if kind == "pssmlt":
         assert 0.5 < r.result().stats["acceptance"] < 1.0
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_direct_samples(kind):
+    """The separate direct samples (mlt.MLTRenderer._separate_direct): on the box, where
+    paths of 1 and 2 edges carry most of the light, the chains' target lacks them (mlt:
+    its chains start on longer paths only), the chains' image's sum is (b - b_direct)
+    N at every iteration, the direct samples' image is the rest, and the sum of both
+    agrees with BDPT (test_other_steps_match_bdpt and the others render with them
+    too); -1 turns them off, N > 0 takes N per pixel per iteration; on the door,
+    whose direct light is a sliver, the automatic plan takes none."""
+    scene = _box()
+    renderer = KINDS[kind][1]
+    kw = dict(mutations_per_pixel=8, bootstrap_samples=8192, chains=512, max_depth=5,
+              large_step_mis=False)
+    r = renderer(scene, seed=3, **kw)
+    assert r.direct_lanes == mlt.MIN_DIRECT_LANES and r.b_direct > mlt.DIRECT_SHARE * r.b
+    assert abs(r.b_chains / (r.b - r.b_direct) - 1.0) < 1e-4
+    if kind == "mlt":
+        assert r.chains_per_depth[:mlt.DIRECT_LENGTH].sum() == 0
+        assert r.chains_per_depth.sum() == 512
+    while not r.done:
+        r.run_iteration()
+        chains = r.chains_tensor().numpy()
+        assert abs(chains.mean() / (r.b - r.b_direct) - 1.0) < 1e-4
+        assert r.tensor().numpy().mean() > chains.mean()
+    # automatic chains (the effective sample size of the chains' cells sets them): the
+    # direct samples stay (mlt's chains started on paths of 3 edges up and no direct
+    # samples were taken before: the door's image lacked 6% of its light)
+    auto = renderer(scene, seed=3, mutations_per_pixel=64, max_depth=5)
+    assert auto.direct_lanes >= mlt.MIN_DIRECT_LANES and auto.b_direct > 0
+    if kind == "mlt":
+        assert auto.chains_per_depth[:mlt.DIRECT_LENGTH].sum() == 0
+    assert renderer(scene, seed=3, direct_samples=-1, **kw).direct_lanes == 0
+    assert renderer(scene, seed=3, direct_samples=2, **kw).direct_lanes == 2 * 256
+    with pytest.raises(ValueError, match="direct_samples"):
+        renderer(scene, direct_samples=-2)
+    door = mi.load_file(str(SCENES / "door-ajar.xml"), resx=16, resy=16, gap_start=0.49)
+    r = renderer(door, seed=1, **kw)
+    assert r.direct_lanes == 0 and r.b_direct < mlt.DIRECT_SHARE * r.b
 
 
 def test_automatic_plan():
@@ -252,8 +293,7 @@ def test_plugin_and_api_give_the_same_image():
     b = bdpt_drjit.render(scene, spp=8, seed=4, integrator="pssmlt", max_depth=5,
                           bootstrap_samples=4096, chains=256).image
     assert np.allclose(a, b, rtol=1e-4, atol=1e-6)
-    with pytest.raises(RuntimeError, match="directSamples"):
-        mi.load_dict({"type": "pssmlt", "directSamples": 4})
+    assert mi.load_dict({"type": "pssmlt", "directSamples": 4}).settings["direct_samples"] == 4
     with pytest.raises(ValueError, match="cluster"):
         bdpt_drjit.render(scene, spp=8, integrator="pssmlt", cluster="local:2")
 
@@ -270,6 +310,7 @@ def test_cli(tmp_path):
     cmd = [sys.executable, "-m", "bdpt_drjit", "mlt", str(SCENES / "cornell-box.xml"),
            "--res", "16x16", "--spp", "64", "--chains", "256",
            "--bootstrap-samples", "4096", "--max-depth", "5", "--no-large-step-mis",
+           "--direct-samples", "-1",
            "-o", str(out)]
     p = subprocess.run(cmd + ["--time", "0.01"], capture_output=True, text=True, timeout=300,
                        env=cli_env())

@@ -203,6 +203,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--multiplex", choices=("strategy", "length"),
                    help="mlt: what a chain fixes besides its path length: its strategy "
                    "(default, as pbrt) or all strategies of its length")
+    t.add_argument("--direct-samples", type=int_at_least(-1), metavar="N",
+                   help="paths of 1 and 2 edges by N independent samples per pixel per "
+                   "iteration instead of the chains (default 0: automatic, where they carry "
+                   ">= 25%% of the light; -1: none)")
     t.add_argument("--mutations-per-pixel", "--spp", dest="mutations_per_pixel",
                    type=int_at_least(1), help="mean mutations per pixel (default: the "
                    "scene's sample count)")

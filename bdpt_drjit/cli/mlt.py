@@ -19,7 +19,7 @@ from .scene import check_sensor_index, integrator_defaults, load_scene, scene_pa
 
 _BDPT_KEYS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
 _MLT_KEYS = ("mutations_per_pixel", "large_step_probability", "bootstrap_samples", "chains",
-             "large_step_mis", "multiplex")
+             "large_step_mis", "multiplex", "direct_samples")
 
 
 def _params(args, scene) -> dict:
@@ -40,6 +40,7 @@ def _save(renderer, out, meta) -> object:
     res = renderer.result()
     meta.update(spp=res.spp, passes=res.passes, render_time=float(res.time),
                 b=float(res.stats["b"]), chains=res.stats["chains"],
+                direct_samples_per_iteration=res.stats["direct_samples_per_iteration"],
                 acceptance=float(res.stats["acceptance"]),
                 mutations_per_pixel=float(res.stats["mutations_per_pixel"]))
     try:
@@ -76,6 +77,9 @@ def run(args, stop) -> int:
                "b = %.6g, chains on %d distinct start states"
                % (renderer.name, path.name, renderer.chains, renderer.iterations, renderer.bootstrap_samples,
                   fmt_time(renderer.bootstrap_time), renderer.b, renderer.start_states))
+        if renderer.direct_lanes:
+            eprint("bdpt: paths of 1 and 2 edges (%.0f%% of b) by %d direct samples per "
+                   "iteration" % (100.0 * renderer.b_direct / renderer.b, renderer.direct_lanes))
     reason, last = None, 0.0
     while not renderer.done:
         renderer.run_iteration()
@@ -85,7 +89,7 @@ def run(args, stop) -> int:
             eprint("bdpt: %d/%d iterations, %.1f mutations per pixel, acceptance %.2f, %s"
                    % (renderer.iterations_done, renderer.iterations,
                       renderer.chains * renderer.iterations_done / renderer.pixels,
-                      renderer.acceptance[-1] if renderer.acceptance else 0.0, fmt_time(now)))
+                      renderer.last_acceptance(), fmt_time(now)))
         if renderer.done:
             break
         if stop.signal is not None:
