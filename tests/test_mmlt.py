@@ -67,8 +67,9 @@ def test_chain_target_is_its_strategy_of_the_full_sample(multiplex):
 
 def test_b_per_path_length_matches_bdpt():
     scene = _box()
+    # The chains over every length (direct_samples=-1: no lengths rendered apart).
     r = mmlt.MMLTRenderer(scene, seed=5, mutations_per_pixel=16, bootstrap_samples=1 << 18,
-                          chains=4096, max_depth=4)
+                          chains=4096, max_depth=4, direct_samples=-1)
     ref = bdpt_drjit.render(scene, spp=512, seed=7, max_depth=4, strategy_images=True)
     per_k = [ref.length_images[k][..., :3].mean() if k in ref.length_images else
              sum(v[..., :3].mean() for (s, t), v in ref.strategy_images.items()
@@ -180,7 +181,7 @@ def test_cli(tmp_path):
     cmd = [sys.executable, "-m", "bdpt_drjit", "mlt", str(SCENES / "cornell-box.xml"),
            "--integrator", "mlt", "--res", "16x16", "--spp", "64", "--chains", "256",
            "--bootstrap-samples", "4096", "--max-depth", "5", "--no-large-step-mis",
-           "-o", str(out)]
+           "--direct-samples", "-1", "-o", str(out)]   # the image is then b's alone
     p = subprocess.run(cmd + ["--time", "0.01"], capture_output=True, text=True, timeout=300,
                        env=cli_env())
     assert p.returncode == 0, p.stderr
