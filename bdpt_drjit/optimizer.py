@@ -52,10 +52,12 @@ more photons do not average away, the camera path's own variance: it scales as
 (v_c / share)^2 (with the pairs scaled like single samples, the moments fell as 1 / eta
 and merging looked 10x better than it renders in Veach's room).  A candidate without
 merging reads a path's moment from the merges only where merging holds nearly all of
-its balance sum (MERGE_ONLY), else from the other samples as BDPT's pilot would.  Its
-work is counted:
-the grid's build per stored vertex and the query steps (8 cell loads per query and the
-items visited, which grow with eta).  Where the decision leaves merging off, no later
+its balance sum (MERGE_ONLY), else from the other samples as BDPT's pilot would.  A
+path no technique but merging reaches (a point light's caustic seen in a mirror) gives
+those candidates no moment but a bias (missed_bias): their error after the render's N
+samples per pixel is cost x (M + N B), not an infinite moment.  Merging's work is
+counted: the grid's build per stored vertex and the query steps (8 cell loads per
+query and the items visited, which grow with eta).  Where the decision leaves merging off, no later
 pass builds a grid or queries it (render.py), and the decision is global: no per-pixel
 merge mask.
 
