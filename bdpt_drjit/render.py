@@ -380,7 +380,7 @@ class Renderer:
         self.pilot = Pilot(mi.is_spectral,
                            self.camera.light_image_possible and self.settings.light_image,
                            self._unit_costs or units.load() or calibrate(),
-                           merging=self.settings.merging)
+                           merging=self.settings.merging, spp=self.spp)
         if self.settings.first_hits != "auto":
             light = self.settings.first_hits == "light_image"
             self.pilot.candidates = [b for b in self.pilot.candidates

@@ -260,17 +260,18 @@ def _render_counting_merges(scene, monkeypatch, **kw):
 @pytest.mark.auto_budget
 def test_vcm_on_the_diffuse_box_leaves_merging_off_and_pays_for_no_grid(monkeypatch):
     """On the diffuse Cornell box merging buys nothing: ``vcm`` (merging on, budgets
-    auto) prices it in the pilot and leaves it off.  Only the pilot's passes (0 and 1)
-    build a grid and query it, for the moments alone (their images are BDPT's: the
-    same image as bdpt's where the decisions agree); the passes after build none and
-    query nothing, and they are as large as bdpt's (no small passes for a radius that
-    does not shrink).  Before, vcm fell back to Veach's budget with merging in every
-    pass."""
+    auto) prices it in the pilot and leaves it off.  Only the pilot's BDPT pass (1)
+    builds a grid and queries it, for the moments alone (its image is BDPT's: the
+    same image as bdpt's where the decisions agree); its first pass is bdpt's (it
+    merged too before, 0.08 s of a 0.57 s render at 128x128), the passes after build
+    none and query nothing, and they are as large as bdpt's (no small passes for a
+    radius that does not shrink).  Before, vcm fell back to Veach's budget with
+    merging in every pass."""
     scene = mi.load_file(scene_path("cornell-box.xml"), resx=32, resy=32)
     res, built, queried = _render_counting_merges(scene, monkeypatch, spp=64, seed=3,
                                                   max_depth=8, merging=True)
     assert "merging=off" in res.stats["budget"], res.stats["decision"]
-    assert built == [0, 1] and queried == [0, 1], (built, queried)
+    assert built == [1] and queried == [1], (built, queried)
     assert "merges=" in res.stats["cost_counts"]
     plain = bdpt_drjit.render(scene, spp=64, seed=3, max_depth=8)
     assert res.passes == plain.passes
@@ -350,3 +351,48 @@ def test_merge_pairs_scale_with_the_merging_rate_squared():
     assert same == pytest.approx((1.0 + 3.0) / 4 + 1.0 / 4)      # the pass itself: F^2
     q, o = 0.2 + 4 * 0.8, 0.5 + 4 * 0.5
     assert more == pytest.approx(1.0 / 4 / q + 3.0 / 4 * (4 / q) ** 2 + 1.0 / 4 / o)
+
+
+def test_a_path_only_merging_reaches_is_a_bias_not_an_infinite_moment():
+    """A merge query of a path that no technique without merging samples (u_vm = 1: a
+    point light's caustic seen in a mirror) adds nothing to those candidates' moments
+    (before: its share floored at 1e-9, a moment of 1e9 F^2) but their squared
+    relative bias B (optimizer.missed_bias): with the same value c in every pixel of a
+    9x9 film, one sample each, and the image's mean m, B = c^2 (1 - 1/81) / m^2 (the
+    window's (S^2 - Q) / n^2).  A query merging holds 99.99% of is still read from
+    its merges (MERGE_ONLY)."""
+    from bdpt_drjit.optimizer import MomentSample, MomentSamples, PilotMeans, missed_bias
+    n, c, m = 81, 0.3, 2.0
+    samples = MomentSamples(n)
+
+    def fill(u_vm):
+        samples.items = MomentSample(pixel=mi.UInt32(np.arange(n)), f2=mi.Float([c * c] * n),
+                                     u_pt=mi.Float([0.0] * n), u_lt=mi.Float([0.0] * n),
+                                     u_vm=mi.Float([u_vm] * n), f2_pairs=mi.Float([0.0] * n),
+                                     query=mi.Float([1.0] * n))
+    samples.count, samples.SLOTS = mi.UInt32([1] * n), 1
+    means = PilotMeans(blurred=mi.Float([m] * n), own=mi.Float([0.0] * n), floor=1e-9)
+    rates = np.array([[1.0, 1.0, 0.0, 0.0], [1.0, 1.0, 0.0, 1.0]])
+    fill(1.0)
+    off, on = samples.relative_moments(rates, means, merging=True) / n
+    assert off == 0.0 and on == pytest.approx(c * c / (m * m), rel=1e-4)
+    assert missed_bias(samples, means, (9, 9)) == pytest.approx(c * c * (1 - 1 / 81) / m ** 2,
+                                                                rel=1e-4)
+    fill(0.9999)
+    off, on = samples.relative_moments(rates, means, merging=True) / n
+    assert off == pytest.approx(c * c / (m * m) / 0.9999 / 1e-4, rel=1e-2)
+    assert missed_bias(samples, means, (9, 9)) == 0.0
+
+
+@pytest.mark.auto_budget
+def test_vcm_leaves_merging_off_where_it_adds_only_a_point_lights_faint_sds_caustic():
+    """SmallVCM's point-light box (benchmarks/smallvcm.py, bs_p): merging alone reaches
+    the glass sphere's caustic seen in the mirror, a faint part of the image (its
+    missing mean: missed_bias), and BDPT renders the rest at a third of merging's cost.
+    Before, those few merge samples gave every candidate without merging an infinite
+    moment and vcm merged (2.8x the default's time per sample for 0.94x its error)."""
+    from benchmarks.smallvcm import build_scene
+    scene = build_scene("bs_p", res=32)
+    for seed in (1, 3):                                 # seed 3 merged before
+        res = bdpt_drjit.render(scene, spp=64, seed=seed, max_depth=10, merging=True)
+        assert "merging=off" in res.stats["budget"], res.stats["decision"]
