@@ -287,10 +287,12 @@ def _shape_verdicts(shape, media: bool) -> list:
 
 
 NULL_LOBE = ("its BSDF lets light pass through (a null lobe: null, mask, thindielectric, "
-             "hair, polarizers): the image is right, but each pass counts as a bounce "
-             "toward max_depth, as in Mitsuba's path (volpath does not count it), and "
-             "no connection crosses it (more noise); in a scene with media a 'null' BSDF "
-             "is a medium boundary instead, crossed by connections and not counted")
+             "hair, polarizers): each pass counts as a bounce toward max_depth, as in "
+             "Mitsuba's path (volpath does not count it), and no connection crosses it "
+             "(more noise; light from a point, spot or directional light that crosses it "
+             "before reaching a surface seen only through such a surface is missing, as in "
+             "path); in a scene with media a 'null' BSDF is a medium boundary instead, "
+             "crossed by connections and not counted")
 REVERSED_NORMALS = ("its vertex normals oppose its triangle winding on %.0f%% of its area: "
                     "where shading and geometric normals disagree, bdpt gives light zero "
                     "weight (as Mitsuba's ptracer does; its path does not), so this mesh "
