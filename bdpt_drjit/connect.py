@@ -33,6 +33,13 @@ from .surface import finite, spectrum_nonzero
 from .vertices import NONE
 
 
+def _shown(ctx, state):
+    """Whether an emitter the camera path reaches now may show: with hide_emitters, not
+    if every vertex before it was passed by a null lobe (a mask's hole), where Mitsuba's
+    path and volpath hide it as seen directly (k = 1 is already off: strategies.py)."""
+    return state.hit if ctx.settings.hide_emitters else True
+
+
 def emission_hit(ctx, state, v):
     """s = 0, t = j + 1: the camera ray arriving at z_j hit an area emitter."""
     t = state.depth + 1
@@ -40,7 +47,7 @@ def emission_hit(ctx, state, v):
     # A medium vertex's si is invalid, which si.emitter() reads as the environment.
     surface = state.active & ~v.in_medium if ctx.media.present else state.active
     emitter = si.emitter(ctx.scene, surface)
-    hit = surface & (emitter != None) & ctx.strategies.enabled(0, t)  # noqa: E711
+    hit = surface & (emitter != None) & ctx.strategies.enabled(0, t) & _shown(ctx, state)  # noqa: E711
     contrib = state.beta * emitter.eval(si, hit)
     n, to_prev = si.sh_frame.n, si.to_world(si.wi)
     pos_pdf_a, emission_pdf_aw = mi.Float(0.0), mi.Float(0.0)
@@ -66,7 +73,7 @@ def environment_hit(ctx, state, flight):
     (the chains as the last scatter left them, in solid angle at z_{j-1})."""
     env = ctx.emitters.environment
     t = state.depth + 1
-    active = flight.escaped & ctx.strategies.enabled(0, t)
+    active = flight.escaped & ctx.strategies.enabled(0, t) & _shown(ctx, state)
     d_vcm, d_vc, d_end = state.d_vcm, state.d_vc, state.d_end
     if ctx.media.present:
         d_vcm, d_vc = ctx.weights.after_escape(d_vcm, d_vc, flight.dens_fwd, flight.dens_rev)
