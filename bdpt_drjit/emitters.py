@@ -37,7 +37,7 @@ import drjit as dr
 import mitsuba as mi
 
 from .emitter_kinds import AREA, DIRECTIONAL, ENV, KINDS, POINT, PROJECTOR, SPOT
-from .support import UnsupportedPluginError, plugin_name
+from .support import UnsupportedPluginError, plugin_name, scene_bbox
 
 
 def is_delta_position(kind):
@@ -128,7 +128,7 @@ class Emitters:
         emitters = scene.emitters()
         # Environment light subpaths start on a disk just outside the scene's
         # bounding sphere (a little larger, so y_0 is never inside geometry).
-        bsphere = scene.bbox().bounding_sphere() if scene.shapes() else None
+        bsphere = scene_bbox(scene).bounding_sphere() if scene.shapes() else None
         self.env_center = mi.ScalarPoint3f(bsphere.center) if bsphere else mi.ScalarPoint3f(0)
         self.env_radius = max(float(bsphere.radius) * 1.01, 1e-3) if bsphere else 1.0
         self.count = len(emitters)

@@ -43,6 +43,7 @@ import numpy as np
 
 from . import mis
 from .strategies import StrategySet
+from .support import scene_bbox
 from .surface import finite, spectrum_nonzero
 from .vertices import gather
 from .optimizer import luminance
@@ -64,7 +65,7 @@ def first_radius(scene: mi.Scene, sensor: mi.Sensor, radius: float) -> float:
     neighbouring pixels at the film's centre: any camera model)."""
     if radius > 0:
         return float(radius)
-    sphere = scene.bbox().bounding_sphere()
+    sphere = scene_bbox(scene).bounding_sphere()
     centre = _vec(sphere.center)
     size = sensor.film().crop_size()
     points = []

@@ -179,6 +179,23 @@ def all_shapes(scene: mi.Scene) -> list:
     return shapes
 
 
+def scene_bbox(scene: mi.Scene) -> mi.ScalarBoundingBox3f:
+    """The scene's bounding box, its merged meshes included: Mitsuba (3.9) merges shapes
+    that share a BSDF into one mesh whose bbox() is invalid, and scene.bbox() then
+    leaves it out (a floor and a wall with the same diffuse BSDF beside a sphere: the
+    sphere's box alone, so a directional light's or an environment's light subpaths,
+    which start on a disk that covers the box, missed the floor and the wall)."""
+    box = mi.ScalarBoundingBox3f(scene.bbox())
+    for shape in scene.shapes():
+        if shape.bbox().valid() or not shape.is_mesh():
+            continue
+        p = np.array(mi.traverse(shape)["vertex_positions"], dtype=np.float64).reshape(-1, 3)
+        if len(p):
+            box.expand(mi.ScalarPoint3f(*p.min(axis=0)))
+            box.expand(mi.ScalarPoint3f(*p.max(axis=0)))
+    return box
+
+
 def mitsuba_path_drops_light(scene: mi.Scene) -> bool:
     """Whether Mitsuba's ``path`` (3.9) loses light in this scene: it returns 0 for a
     path that never samples a non-null lobe at a surface (its ``valid_ray``), so what
