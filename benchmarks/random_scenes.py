@@ -5,10 +5,11 @@
     python -m benchmarks.random_scenes --options budgets  # fixed budgets, not the default
 
 Each scene has a sensor (perspective, thin lens or orthographic; a random reconstruction
-filter, rgb or rgba, sometimes a crop window or a sampled filter border), a floor, a
-sphere or a cube and sometimes a wall with random BSDFs, and one light (an area
-rectangle or sphere, a point, a spot, a directional light, a constant or an
-environment-map sky).  bdpt renders it 4 x 128 spp with an option set drawn per scene,
+filter, rgb or rgba, sometimes a crop window or a sampled filter border), a floor
+(sometimes textured), a sphere or a cube (sometimes a cube of fog) and sometimes a wall
+with random BSDFs, and a light (an area rectangle or sphere, a point, a spot, a
+directional light, a constant or an environment-map sky), sometimes with a small
+sphere light beside it.  bdpt renders it 4 x 128 spp with an option set drawn per scene,
 volpath 4 x 512 spp.  Per 4 x 4 block of the image, z = the difference of the means over
 the seeds' standard errors and 2% of the reference; a scene is flagged BAD at z > 6 or a
 non-finite pixel, ERR where bdpt raises (a clear refusal is expected there; anything else
@@ -123,12 +124,23 @@ def scene(rng: random.Random) -> tuple:
     if rng.random() < 0.5:
         d["wall"] = {"type": "rectangle", "bsdf": bsdf(rng, False),
                      "to_world": T().translate([0, 1.5, -1.5]).scale(3)}
+    if rng.random() < 0.2:                  # the ball becomes a fog cube
+        d["ball"] = {"type": "cube", "bsdf": {"type": "null"},
+                     "to_world": T().translate([0, 0.5, 0]).scale(0.5),
+                     "interior": {"type": "homogeneous", "sigma_t": 1.5, "albedo": 0.8}}
+    if rng.random() < 0.2:                  # a second light, a small sphere
+        d["lamp"] = {"type": "sphere", "center": [-1, 1.5, 0.5], "radius": 0.15,
+                     "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [4, 6, 8]}}}
+    if rng.random() < 0.15:                 # a textured floor
+        d["floor"]["bsdf"] = {"type": "diffuse", "reflectance": {
+            "type": "checkerboard", "to_uv": T().scale([8, 8, 1])}}
     bsdfs = [d[k]["bsdf"]["type"] for k in ("floor", "ball", "wall") if k in d]
     film = d["sensor"]["film"]
-    desc = "%s %s%s%s %s, %s" % (d["sensor"]["type"], film["rfilter"]["type"],
-                                 " crop" if "crop_width" in film else "",
-                                 " border" if film.get("sample_border") else "", kind,
-                                 "/".join(bsdfs))
+    desc = "%s %s%s%s %s%s, %s%s" % (d["sensor"]["type"], film["rfilter"]["type"],
+                                     " crop" if "crop_width" in film else "",
+                                     " border" if film.get("sample_border") else "", kind,
+                                     " + lamp" if "lamp" in d else "", "/".join(bsdfs),
+                                     " (fog)" if "interior" in d["ball"] else "")
     return d, desc, any(b in PASSING for b in bsdfs)
 
 
