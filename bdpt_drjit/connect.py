@@ -27,7 +27,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import mis
-from .emitters import DIRECTIONAL
+from .emitters import DIRECTIONAL, ENV
 from .media import connection_key
 from .surface import finite, spectrum_nonzero
 from .vertices import NONE
@@ -110,6 +110,10 @@ def next_event(ctx, state, v, sample, active):
     scene = ctx.scene
     ds, spec = scene.sample_emitter_direction(v.si, sample, False, active)
     active = active & (ds.pdf > 0) & spectrum_nonzero(spec)
+    if ctx.emitters.kinds_present & {ENV, DIRECTIONAL}:
+        kind = ctx.emitters.kind_of(ds.emitter, active)
+        at_infinity = (kind == ENV) | (kind == DIRECTIONAL)
+        ds.p = dr.select(at_infinity, ctx.emitters.past_the_scene(v.p, ds.d), ds.p)
     cos_cam, ok = v.cosine(ds.d)
     active = active & ok
     weights = ctx.weights

@@ -360,6 +360,14 @@ class Emitters:
     def kind_of(self, emitter, active=True) -> mi.UInt32:
         return dr.gather(mi.UInt32, self.kind, self.index(emitter, active), active)
 
+    def past_the_scene(self, p: mi.Point3f, d: mi.Vector3f) -> mi.Point3f:
+        """A point along d from p (inside the scene) beyond its bounding sphere: where a
+        shadow ray toward an environment or a directional light ends.  Mitsuba's own
+        direction samples end 2 R from p with R from scene.bbox(), which leaves out
+        merged meshes (support.scene_bbox)."""
+        reach = dr.norm(p - mi.Point3f(self.env_center)) + self.env_radius
+        return p + d * reach
+
     def nee_pdf_a(self, ref: mi.Interaction3f, p, n, uv, emitter, delta_pos, time, active=True):
         """P_nee(y | ref) in area measure at y (pmf included) for a point y on an
         emitter; the pmf for delta-position emitters."""
