@@ -76,6 +76,17 @@ def connection_key(ctx, depth, s) -> mi.UInt32:
     return key
 
 
+def is_boundary(si: mi.SurfaceInteraction3f) -> mi.Bool:
+    """A surface whose BSDF has a null lobe and nothing else (``null``): a medium
+    boundary, crossed and not a vertex.  A mask or a thin dielectric, whose null lobe
+    sits beside lobes that scatter, stays a vertex, as in a scene without media."""
+    flags = si.bsdf().flags()
+    scatters = (mi.has_flag(flags, mi.BSDFFlags.Smooth)
+                | mi.has_flag(flags, mi.BSDFFlags.DeltaReflection)
+                | mi.has_flag(flags, mi.BSDFFlags.DeltaTransmission))
+    return mi.has_flag(flags, mi.BSDFFlags.Null) & ~scatters
+
+
 def scene_media(scene: mi.Scene, sensor: mi.Sensor) -> list:
     """Every medium of the scene (shapes' interior and exterior, sensor, emitters)."""
     found = [sensor.get_medium()] + [e.get_medium() for e in scene.emitters()]
@@ -241,8 +252,7 @@ class Media:
         loop.dens_fwd = dr.select(homogeneous, loop.dens_fwd * channel_mean(pdf), loop.dens_fwd)
         loop.dens_rev = dr.select(homogeneous, loop.dens_rev * channel_mean(tr * sigma_behind),
                                   loop.dens_rev)
-        null_surface = (going & ~collided & si.is_valid()
-                        & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Null))
+        null_surface = going & ~collided & si.is_valid() & is_boundary(si)
         # A null collision or a null surface: the ray goes on from there.
         moved = mi.Ray3f(ray)
         moved.o = dr.select(null_surface, si.spawn_ray(ray.d).o, mei.p)
@@ -315,7 +325,7 @@ class Media:
             dens_fwd[homogeneous] *= channel_mean(seg * dr.select(last, target_sigma, 1.0))
             dens_rev[homogeneous] *= channel_mean(seg * dr.select(first, origin_sigma, 1.0))
             at_surface = going & ~tracked & (si.t < ray.maxt)
-            passes = at_surface & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Null)
+            passes = at_surface & is_boundary(si)
             tr[at_surface & ~passes] = 0.0
             changes = passes & si.is_medium_transition()
             medium = dr.select(changes, si.target_medium(ray.d), medium)

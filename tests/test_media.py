@@ -65,6 +65,28 @@ def test_global_medium_without_boundary():
                                what="global fog")
 
 
+def test_a_mask_in_a_scene_with_media_still_scatters():
+    """A mask floor of opacity 0.5 under a constant sky, beside a fog cube: in a scene
+    with media only a null BSDF is a medium boundary (media.is_boundary); a mask stays
+    a surface that scatters half the light and lets half pass.  Failed before: every
+    BSDF with a null lobe was crossed as a boundary, the mask was fully transparent,
+    and the image read 0.80 against volpath's 0.70."""
+    T = mi.ScalarTransform4f
+    scene = mi.load_dict({
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": 45,
+                   "to_world": T().look_at([0, 1, 4], [0, 0.3, 0], [0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 16, "height": 16, "rfilter": {"type": "box"}}},
+        "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(3),
+                  "bsdf": {"type": "mask", "opacity": 0.5, "bsdf": {"type": "diffuse"}}},
+        "fog": {"type": "cube", "bsdf": {"type": "null"},
+                "to_world": T().translate([0, 0.5, 0]).scale(0.5),
+                "interior": {"type": "homogeneous", "sigma_t": 1.5, "albedo": 0.8}},
+        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.7, 0.8, 1.0]}}})
+    assert_statistically_equal(_bdpt(scene, 32, 8, max_depth=-1), _volpath(scene, 128, 8, max_depth=-1),
+                               what="mask beside fog")
+
+
 def test_area_light_on_a_shape_with_media():
     """A sphere light whose shape declares the fog outside it (and another medium
     inside): light subpaths start in the medium on the side they leave by."""
