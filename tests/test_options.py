@@ -340,22 +340,30 @@ def test_strategy_subsets_match_their_mitsuba_counterparts(box, subset, ref):
     assert_statistically_equal(ours, theirs, what="strategy_subset=" + subset)
 
 
+def _behind_a_veil(pixel_format: str, light: dict):
+    """A mask of opacity 0.3 filling a 24x16 view (box filter), a sphere behind part of
+    it, and ``light``."""
+    T = mi.ScalarTransform4f
+    return mi.load_dict({
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": 40,
+                   "to_world": T().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 24, "height": 16,
+                            "pixel_format": pixel_format, "rfilter": {"type": "box"}}},
+        "veil": {"type": "rectangle", "to_world": T().translate([0, 0, 1]).scale(3),
+                 "bsdf": {"type": "mask", "opacity": 0.3, "bsdf": {"type": "diffuse"}}},
+        "ball": {"type": "sphere", "center": [0.5, 0, -1], "radius": 0.8},
+        "light": light})
+
+
 def test_alpha_behind_a_mask_matches_path():
     """Alpha through a surface that lets some of the light pass (a mask of opacity 0.3
     filling the view, a sphere behind part of it): a sample is opaque where its path
     reaches a surface and does not pass it by the null lobe, as Mitsuba's path counts
     it: 0.3 where the void lies behind the mask, 1 over the sphere.  Failed before:
     alpha was 1 wherever the camera ray hit any surface (1 over the whole mask)."""
-    T = mi.ScalarTransform4f
-    scene = mi.load_dict({
-        "type": "scene",
-        "sensor": {"type": "perspective", "fov": 40,
-                   "to_world": T().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]),
-                   "film": {"type": "hdrfilm", "width": 24, "height": 16, "pixel_format": "rgba"}},
-        "veil": {"type": "rectangle", "to_world": T().translate([0, 0, 1]).scale(3),
-                 "bsdf": {"type": "mask", "opacity": 0.3, "bsdf": {"type": "diffuse"}}},
-        "ball": {"type": "sphere", "center": [0.5, 0, -1], "radius": 0.8},
-        "light": {"type": "point", "position": [0, 2, 3], "intensity": {"type": "rgb", "value": 10.0}}})
+    scene = _behind_a_veil("rgba", {"type": "point", "position": [0, 2, 3],
+                                    "intensity": {"type": "rgb", "value": 10.0}})
     ours = [bdpt_drjit.render(scene, spp=16, seed=s, max_depth=4).image[..., 3:] for s in range(8)]
     ref = [mitsuba_render(scene, "path", 16, seed=100 + s, max_depth=4)[..., 3:] for s in range(8)]
     assert 0.3 < np.mean(ours) < 0.7
@@ -369,16 +377,8 @@ def test_hide_emitters_hides_the_sky_through_a_mask():
     opacity 0.3 across the view of a constant sky, a sphere behind it.  Failed before:
     the pass through the mask counted as a bounce, so the sky showed through it at 70%
     (the fixed budget, Veach's; random_scenes found it with an environment map)."""
-    T = mi.ScalarTransform4f
-    scene = mi.load_dict({
-        "type": "scene",
-        "sensor": {"type": "perspective", "fov": 40,
-                   "to_world": T().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]),
-                   "film": {"type": "hdrfilm", "width": 24, "height": 16, "rfilter": {"type": "box"}}},
-        "veil": {"type": "rectangle", "to_world": T().translate([0, 0, 1]).scale(3),
-                 "bsdf": {"type": "mask", "opacity": 0.3, "bsdf": {"type": "diffuse"}}},
-        "ball": {"type": "sphere", "center": [0.5, 0, -1], "radius": 0.8},
-        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.8, 0.9, 1.0]}}})
+    scene = _behind_a_veil("rgb", {"type": "constant",
+                                   "radiance": {"type": "rgb", "value": [0.8, 0.9, 1.0]}})
     ours = [bdpt_drjit.render(scene, spp=32, seed=s, max_depth=-1, hide_emitters=True).image
             for s in range(8)]
     ref = [np.array(mi.render(scene, spp=64, seed=100 + s, integrator=mi.load_dict(
