@@ -110,9 +110,11 @@ def next_event(ctx, state, v, sample, active):
     scene = ctx.scene
     ds, spec = scene.sample_emitter_direction(v.si, sample, False, active)
     active = active & (ds.pdf > 0) & spectrum_nonzero(spec)
+    directional = False                 # (a Python False where no such light exists)
     if ctx.emitters.kinds_present & {ENV, DIRECTIONAL}:
         kind = ctx.emitters.kind_of(ds.emitter, active)
-        at_infinity = (kind == ENV) | (kind == DIRECTIONAL)
+        directional = kind == DIRECTIONAL
+        at_infinity = (kind == ENV) | directional
         ds.p = dr.select(at_infinity, ctx.emitters.past_the_scene(v.p, ds.d), ds.p)
     cos_cam, ok = v.cosine(ds.d)
     active = active & ok
@@ -132,9 +134,6 @@ def next_event(ctx, state, v, sample, active):
         if weights.chains:
             _, emission_pdf_aw, cos_light, _ = ctx.emitters.emission_pdfs(ds.emitter, ds.n, -ds.d, active)
             emission_pdf_aw *= dens_rev
-        directional = False
-        if DIRECTIONAL in ctx.emitters.kinds_present:
-            directional = ctx.emitters.kind_of(ds.emitter, active) == DIRECTIONAL
         nee_pdf_w = weights.nee_density_w(
             ds, scene.pdf_emitter_direction(v.si, ds, active & ~ds.delta), directional)
         bsdf_pdf_w = bsdf_pdf_w * dens_fwd
