@@ -222,8 +222,8 @@ class _Worker:
         return self._passes([index])
 
     def pilot(self) -> dict:
-        """The pilot passes of an "auto" budget, both on one film: the last chooses the
-        budget from what both rendered (optimizer.py); the choice goes back with them."""
+        """The pilot pass of an "auto" budget, which chooses the budget from what it
+        rendered (optimizer.py); the choice goes back with it."""
         from .optimizer import Pilot
         out = self._passes(range(Pilot.PASSES))
         if "raw" in out:
@@ -542,8 +542,8 @@ class ClusterRun:
             self._spp_at.append(self._spp_at[-1] + n * spp / self.pixels)
         self.limit = len(self.plan)           # passes to merge (lowered by wind_down)
         self.queue = collections.deque(range(len(self.plan)))
-        # An "auto" budget: passes 0 and 1 go to one worker as the pilot (index 0); the
-        # other passes wait for the budget it chooses.
+        # An "auto" budget: the pilot pass goes to one worker (index 0); the other
+        # passes wait for the budget it chooses.
         self.pilot = renderer.pilot is not None
         if self.pilot:
             from .optimizer import Pilot

@@ -1,19 +1,16 @@
 """Efficiency-aware budgets (Grittmann, Yazici, Georgiev, Slusallek 2022): choose the
 budget (budgets.py) whose cost times summed relative second moment is smallest.
 
-The pilot.  Two passes open a render whose budget is "auto", each over every other
-pixel (render.Renderer._plan_pilot; on a large film one pixel in four: Pilot.stride):
-light tracing with path tracing (light_paths 1, connections 0) on the even pixels,
-then full BDPT (light_paths 1, connections "all") with the balance heuristic on the
-odd ones, in which every contribution also reports
-its balance weight split into three groups of strategies: path tracing (s <= 1), the
-light image (t = 1) and connections (u_pt + u_lt + u_con = 1; the two ends of the
-ratio chains isolate u_pt and u_lt, walk.PathState.d_end).  Each pass keeps the splats
-that land in its own pixels (film.py), so both are complete MIS estimators of their
-pixels and part of the image.  (Path tracing alone on the even pixels, with both
-passes' light images over every pixel at half their rate, was biased: a point-light
-caustic, which path tracing cannot render, came out of the pilot at half its
-brightness, 3% of a 16-spp render.)
+The pilot.  One pass opens a render whose budget is "auto"
+(render.Renderer._plan_pilot; on a large film over every other pixel:
+Pilot.stride): full BDPT (light_paths 1, connections "all") with the balance
+heuristic, in which every contribution also reports its balance weight split into
+three groups of strategies: path tracing (s <= 1), the light image (t = 1) and
+connections (u_pt + u_lt + u_con = 1; the two ends of the ratio chains isolate u_pt
+and u_lt, walk.PathState.d_end).  The pass keeps the splats that land in its own
+pixels (film.py), so it is a complete MIS estimator of its pixels and part of the
+image.  (A pass of light and path tracing first, to count the camera walk's rays
+apart, cost a second traced pass: 10-14 ms of a 64x64 render's 47 ms.)
 
 Second moments.  The balance-heuristic combination of a candidate c, whose rates are
 1, r_c and kappa_c for the three groups (mis.py), has second moment
@@ -42,7 +39,7 @@ merging off and, where it has light subpaths, on (``merging_candidates``).  The 
 pilot pass then merges too (the balance heuristic), for its moments only: its image
 is BDPT's (mis.Weights' shadow), and where merging is chosen render.py turns its
 samples into the estimator with merging (each contribution x (1 - u_vm), the merges
-added); the first pilot pass is bdpt's (Pilot.budget).  The BDPT pass merges at its own rate eta_P = pi r^2 N_L, and each contribution
+added).  The pilot pass merges at its own rate eta_P = pi r^2 N_L, and each contribution
 also reports merging's share u_vm of its balance sum (mis.py's d_vm), so
 P_c / P = u_pt + r_c u_lt + kappa_c u_con + v_c u_vm with v_c = eta_c / eta_P, eta_c
 the candidate's rate in the passes to come (their radii and sizes: Costs.merge_eta).
@@ -62,9 +59,9 @@ pass builds a grid or queries it (render.py), and the decision is global: no per
 merge mask.
 
 Costs are counted, not timed: the pilot counts per camera sample the rays of the
-camera walk with s <= 1 (the first pass), per light subpath the rays of the light walk
-and its t = 1 splats, the light vertices it stores, and the connections' shadow rays
-(what the BDPT pass's camera walk traces beyond the first pass's); a vertex cache of M
+camera walk with s <= 1, per light subpath the rays of the light walk and its t = 1
+splats, the light vertices it stores, and the connections' shadow rays (counted apart
+in the camera walk: walk.PathState.links); a vertex cache of M
 connects M / (stored vertices per light subpath) of them.  Each count is priced by
 the machine's unit cost (units.py, measured once by render.calibrate), and path
 tracing, where Mitsuba's path renders it, by that megakernel's cost per ray.  The
@@ -421,18 +418,24 @@ class PilotMeans:
         pixel: each sample is 1 / spp of its pixel (splats too: film.py's light image
         normalization; a wider pixel filter spreads that share over neighbours, almost
         all inside the same blur window), and a pixel is counts_x x counts_y /
-        (2 BLUR + 1)^2 of its own blurred value (1 + BLUR times on the film's edge,
-        which the blur extends).  ``filled``: the pixels that have samples, where the
-        pilot took only some (Pilot.stride); the blur averages over those alone."""
+        (2 r + 1)^2 of its own blurred value (1 + r times on the film's edge, which the
+        blur extends; r = BLUR).  ``filled``: the pixels that have samples, where the
+        pilot took only some (Pilot.stride); the blur averages over those alone, in a
+        window widened to hold as many of them as BLUR's holds pixels (a noisier mean
+        makes the moments larger, 1 / mean^2: a quarter-film pilot's were 1.09-1.15x
+        what the whole film's later passes estimated with BLUR's window, 1.03-1.13x
+        with this one, test_optimizer.py)."""
         h, w = image.shape
-        k = 2 * BLUR + 1
+        r = BLUR
         cover, mean = 1.0, float(np.mean(image))      # share of a window with samples
         if filled is not None:
-            cover = np.maximum(_blur(filled.astype(float)), 1.0 / (k * k))
+            r = int(round(BLUR / np.sqrt(max(filled.mean(), 1e-3))))
+            cover = np.maximum(_blur(filled.astype(float), r), 1.0 / (2 * r + 1) ** 2)
             image = image * filled
             mean = float(image.sum() / filled.sum())
-        own = np.outer(_self_counts(h), _self_counts(w)) / (k * k * max(spp, 1) * cover)
-        return cls(blurred=mi.Float((_blur(image) / cover).ravel().astype(np.float32)),
+        k = 2 * r + 1
+        own = np.outer(_self_counts(h, r), _self_counts(w, r)) / (k * k * max(spp, 1) * cover)
+        return cls(blurred=mi.Float((_blur(image, r) / cover).ravel().astype(np.float32)),
                    own=mi.Float(own.ravel().astype(np.float32)),
                    floor=DARK * max(mean ** 2, 1e-12))
 
@@ -442,11 +445,11 @@ class PilotMeans:
         return dr.maximum(dr.square(dr.maximum(mean, 0.0)), dr.opaque(mi.Float, self.floor))
 
 
-def _self_counts(n: int) -> np.ndarray:
-    """How often index i appears in its own window of radius BLUR over an axis of n
+def _self_counts(n: int, radius: int = BLUR) -> np.ndarray:
+    """How often index i appears in its own window of ``radius`` over an axis of n
     extended by its edge values."""
     i = np.arange(n)
-    return 1 + BLUR * ((i == 0).astype(int) + (i == n - 1))
+    return 1 + radius * ((i == 0).astype(int) + (i == n - 1))
 
 
 @dataclass
@@ -538,41 +541,40 @@ def decide(cands: list[Budget], relative: np.ndarray, costs: Costs) -> Decision:
     return Decision(budget=rows[0][0], table=rows)
 
 
-def _blur(image: np.ndarray) -> np.ndarray:
-    """A box filter of radius BLUR (the pilot's mean is noisy)."""
+def _blur(image: np.ndarray, radius: int = BLUR) -> np.ndarray:
+    """A box filter of ``radius`` (the pilot's mean is noisy)."""
     h, w = image.shape
-    padded = np.pad(image, BLUR, mode="edge")
+    padded = np.pad(image, radius, mode="edge")
     c = padded.cumsum(0).cumsum(1)
     c = np.pad(c, ((1, 0), (1, 0)))
-    k = 2 * BLUR + 1
+    k = 2 * radius + 1
     return (c[k:k + h, k:k + w] - c[:h, k:k + w] - c[k:k + h, :w] + c[:h, :w]) / (k * k)
 
 
 class Pilot:
     """The pilot passes of an "auto" render (module docstring) and its decision."""
 
-    PASSES = 2
+    PASSES = 1
 
     @staticmethod
     def spp(pixels: int, total_spp: int) -> int:
-        """Samples per pixel of the pilot round: enough lanes in each half of the
-        pixels to time the kernels, at most 1/16 of the render."""
-        return max(1, min(-(-_pilot_lanes() // pixels), total_spp // 16))
+        """Samples per pixel of the pilot pass: enough lanes for its moments, at most
+        1/32 of the render."""
+        return max(1, min(-(-_pilot_lanes() // pixels), total_spp // 32))
 
     @staticmethod
     def stride(pixels: int, spp: int) -> int:
-        """Each pilot pass takes one pixel in ``stride``: 2, the two passes cover the
-        film, or 4 where a quarter of it at 1 spp still gives a pass PILOT_LANES; the
-        odd pixels then get their samples of the round from the chosen budget
-        (render.Renderer._plan_pilot).  Past that size the pilot's samples need not
-        grow with the film: its decision prices counts, not timings, so its passes
-        need no occupancy, only enough samples for the moments.  (Glass pane, 256x256,
-        64 spp, where path tracing is chosen: the pilot round took 190 ms of 1.07 s,
-        against path's 0.89 s for the whole render, with halves.)  The means its
+        """The pilot pass takes one pixel in ``stride``: 1, the whole film, or 2 where
+        half of it at 1 spp still gives the pass PILOT_LANES; the odd pixels then get
+        their sample of the round from the chosen budget (render.Renderer._plan_pilot).  Past that size the pilot's samples need not
+        grow with the film: its decision prices counts, not timings, so its pass
+        needs no occupancy, only enough samples for the moments.  The means its
         moments divide by (PilotMeans) rest on fewer samples, which makes every
         candidate's moment a few percent larger (1 / mean^2 of a noisier mean),
-        about alike for all."""
-        return 4 if spp == 1 and pixels // 4 >= _pilot_lanes() else 2
+        about alike for all.  (A pilot on a quarter of the film made them 1.03-1.13x
+        the whole film's estimate, Cornell box 256x256, 7 seeds; on half of it
+        1.02-1.06x.)"""
+        return 2 if spp == 1 and pixels // 2 >= _pilot_lanes() else 1
 
     def __init__(self, spectral: bool, light_image: bool = True,
                  units: UnitCosts | None = None, merging: bool = False, spp: int = 0):
@@ -584,52 +586,41 @@ class Pilot:
         self.decision: Decision | None = None     # the latest
         self.first: Decision | None = None        # the pilot's
         self.rounds: list = []                    # (spp, budget) of each re-decision
-        self.pilot_eta = 0.0                      # the BDPT pilot pass's merging rate
+        self.pilot_eta = 0.0                      # the pilot pass's merging rate
         self.moments: dict = {}                   # candidate: (sum of estimates x
                                                   # recorded samples, recorded samples)
 
     def budget(self, index: int):
-        """(budget, heuristic, with moments) of pilot pass ``index``: light tracing with
-        path tracing (path tracing alone without a light image), then full BDPT.  With
-        merging (vcm) the BDPT pass merges, its image without it (render.py,
-        mis.Weights' shadow): its merges give the merging candidates' moments, and
-        where merging is chosen its image becomes the estimator with merging (with the
-        balance heuristic, which gives that estimator's weights from u_vm).  The first
-        pass is bdpt's: it records no moments, and its merges served only to make its
-        image merging's where merging is chosen.  Measured (128x128, 32 spp, 8 seeds,
-        interleaved, medians): with them, vcm / bdpt relMSE x time 1.27 on the diffuse
-        box (the pass took 0.10-0.14 s against 0.02-0.06 s); without, 1.13, and on the
-        SDS scene relMSE 0.083 against 0.062 (the pass's path-traced fireflies)."""
-        on = True if self.merging else None
-        if index == 0:
-            return Budget(1.0 if self.light_image else 0.0, 0,
-                          merging=False if self.merging else None), None, False
-        return Budget(1.0, "all", merging=on), "balance", True
+        """(budget, heuristic, with moments) of pilot pass ``index``: full BDPT with the
+        balance heuristic.  With merging (vcm) it merges too, its image without it
+        (render.py, mis.Weights' shadow): its merges give the merging candidates'
+        moments, and where merging is chosen its image becomes the estimator with
+        merging (with the balance heuristic, which gives that estimator's weights from
+        u_vm)."""
+        return Budget(1.0, "all", merging=True if self.merging else None), "balance", True
 
-    def record(self, index: int, lanes: int, camera_rays: int, light_subpaths: int,
+    def record(self, lanes: int, walk_rays: int, connection_rays: int, light_subpaths: int,
                light_rays: int, stored: int, first_hit_share: float = 1.0) -> None:
-        """The work a pilot pass counted: rays of its camera walk (over ``lanes``
-        camera samples) and of its light walk, and the light vertices it stored."""
-        per_sample = camera_rays / max(lanes, 1)
-        if index == 0:
-            self.costs.camera_rays = per_sample
-            self.costs.first_hit_share = first_hit_share
-            self.costs.light_rays = light_rays / max(light_subpaths, 1)
-            return
-        # The BDPT pass's camera walk traces the same rays and its connections'.
-        self.costs.connection_rays = max(per_sample - self.costs.camera_rays, 0.0)
+        """The work the pilot pass counted over ``lanes`` camera samples: the rays of
+        its camera walk with s <= 1 and those of its connections to stored vertices,
+        the rays of its light walk with the t = 1 splats, and the light vertices it
+        stored."""
+        self.costs.camera_rays = walk_rays / max(lanes, 1)
+        self.costs.first_hit_share = first_hit_share
+        self.costs.light_rays = light_rays / max(light_subpaths, 1)
+        self.costs.connection_rays = connection_rays / max(lanes, 1)
         self.costs.stored_per_path = stored / max(light_subpaths, 1)
 
     def record_merging(self, lanes: int, merges: int, items: int, eta: float) -> None:
-        """The merge work the BDPT pilot pass counted at its merging rate ``eta``."""
+        """The merge work the pilot pass counted at its merging rate ``eta``."""
         self.costs.merges = merges / max(lanes, 1)
         self.costs.merge_items = items / max(lanes, 1) / max(eta, 1e-30)
 
     def decide(self, samples: MomentSamples, splats, mean: np.ndarray, spp: int,
                filled: np.ndarray | None = None) -> Decision:
-        """The budget for the rest of the render, from the BDPT pilot's samples and the
-        image of both pilot passes (its luminance, (H, W), after ``spp`` camera samples
-        per pixel of those in ``filled``, all by default)."""
+        """The budget for the rest of the render, from the pilot pass's samples and
+        its image (its luminance, (H, W), after ``spp`` camera samples per pixel of
+        those in ``filled``, all by default)."""
         self.decision = self._decide(self.candidates, samples, splats, mean, spp,
                                      (1.0, 1.0, self.pilot_eta), filled)
         self.first = self.decision

@@ -321,6 +321,7 @@ class Renderer:
         self.spp_done = 0.0           # samples per pixel rendered (fractional: pixel ranges)
         self.time = 0.0
         self.rays = 0                 # traced by this engine's walks
+        self.last_counts = [0, 0]     # the last pass's: rays of its camera walk, light walk
         self.path_tracer_spp = 0.0    # samples per pixel rendered by Mitsuba's path
         self._last_lanes = 0
         self._vertices_per_path = 3.0   # stored light vertices per light subpath, last pass
@@ -371,12 +372,11 @@ class Renderer:
                    lanes(1.0, _VERTICES_PER_LANE, _SPLATS_PER_LANE, True))
 
     def _plan_pilot(self, max_lanes: int) -> None:
-        """An "auto" budget: the render opens with one round of pilot passes, light and
-        path tracing on the even pixels and BDPT on the odd ones (optimizer.py), so
-        that every pixel has the same samples after them and the pilot costs half a
-        BDPT round; then the rest of the samples.  On a large film the pilot passes
-        take pixels 0 and 2 of every 4 (optimizer.Pilot.stride) and a third pass of
-        the round gives the odd ones their sample with the budget chosen."""
+        """An "auto" budget: the render opens with a pilot pass, BDPT with moments
+        (optimizer.py), then the rest of the samples.  On a large film the pilot pass
+        takes every other pixel (optimizer.Pilot.stride), and a second pass of its
+        round gives the odd ones their samples with the budget chosen, so that every
+        pixel has the same samples after the round."""
         self.pilot = Pilot(mi.is_spectral,
                            self.camera.light_image_possible and self.settings.light_image,
                            self._unit_costs or units.load() or calibrate(),
@@ -390,14 +390,11 @@ class Renderer:
                                  "vertex can be connected to (not an orthographic one)")
         spp = self._accepted_count(self.settings.samples_per_pass
                                    or Pilot.spp(self.pixels, self.spp))
-        even, odd = (self.pixels + 1) // 2, self.pixels // 2
-        if Pilot.stride(self.pixels, spp) == 2:
-            pilot_round = [(0, even, spp), (1, odd, spp)]
-            self._stride = {0: 2, 1: 2}
+        if Pilot.stride(self.pixels, spp) == 1:
+            pilot_round = [(0, self.pixels, spp)]
         else:
-            pilot_round = [(0, (self.pixels + 3) // 4, spp), (2, (self.pixels + 1) // 4, spp),
-                           (1, odd, spp)]
-            self._stride = {0: 4, 1: 4, 2: 2}
+            pilot_round = [(0, (self.pixels + 1) // 2, spp), (1, self.pixels // 2, spp)]
+            self._stride = {0: 2, 1: 2}
         self._pilot_round = len(pilot_round)
         self.plan = pilot_round + plan_passes(
             self.spp - spp, self.pixels, max_lanes, self.settings.samples_per_pass,
@@ -504,8 +501,7 @@ class Renderer:
             dr.flush_malloc_cache()
         self._last_lanes = lanes
         start = time.perf_counter()
-        timed = self.timings is not None and self._is_pilot_pass(index)
-        history = dr.flag(dr.JitFlag.KernelHistory) or timed
+        history = dr.flag(dr.JitFlag.KernelHistory) or self.timings is not None
         with dr.suspend_grad(), dr.scoped_set_flag(dr.JitFlag.KernelHistory, history):
             self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
             if self._outgrown:
@@ -520,7 +516,7 @@ class Renderer:
 
     # -- one pass -----------------------------------------------------------------------
     def _is_pilot_pass(self, index: int) -> bool:
-        """One of the pilot's two timed passes (not the third pass of its round)."""
+        """The pilot pass (not the passes that complete its round)."""
         return self.pilot is not None and index < Pilot.PASSES
 
     def _sampler(self, index: int, stream: int, lanes: int, spp: int) -> mi.Sampler:
@@ -587,8 +583,7 @@ class Renderer:
         if (self._path_tracer is not None and index >= Pilot.PASSES
                 and self.budget == PATH_TRACING):
             return self._path_traced_pass(index, pixel_offset, n_pixels, spp, lanes)
-        timer = _StageTimer(self.timings is not None and self._is_pilot_pass(index),
-                            self.kernel_history)
+        timer = _StageTimer(self.timings is not None, self.kernel_history)
         # Stage 1: camera rays.
         sampler = self._sampler(index, 0, lanes, spp)
         rays = self.camera.sample_rays(sampler, pixel_offset, n_pixels, spp,
@@ -619,24 +614,22 @@ class Renderer:
             self._put_splats(index, store, ctx, lanes, pixel_offset)
         self.film.camera_samples += lanes
         totals = (dr.sum(cam.rays), dr.sum(light_rays))
-        merging = self._is_pilot_pass(index) and cam.merges is not None
-        if merging:                                     # merge work, counted (optimizer.Costs)
-            totals += (dr.sum(cam.merges), dr.sum(cam.merge_items))
+        pilot = self._is_pilot_pass(index)
+        if pilot:                   # the pilot's counts, all read in the same sync
+            totals += self._pilot_counts(cam)
         dr.eval(*totals)                                # one launch, read in one sync
-        camera_rays, light_ray_count = (int(n[0]) for n in totals[:2])
-        self.rays += camera_rays + light_ray_count
+        counts = [int(n[0]) for n in totals]
+        self.last_counts = counts[:2]                   # camera walk's rays, light walk's
+        self.rays += counts[0] + counts[1]
         if timer.on:
             self.timings[index] = (light_seconds, camera_seconds, grid_seconds)
-        if merging:
-            self.pilot.record_merging(lanes, int(totals[2][0]), int(totals[3][0]), ctx.mis_rates[2])
-        if self._is_pilot_pass(index):
+        if pilot:
             if ctx.weights.shadow:
                 self._pending.append((index, rays, ctx, store, lanes, pixel_offset))
-            self._pilot_pass(index, ctx, store, cam, camera_rays, light_ray_count, lanes)
-            if index == Pilot.PASSES - 1:
-                for pending in self._pending if self.budget.merges else ():
-                    self._merging_after_all(*pending)
-                self._pending = []
+            self._pilot_pass(index, ctx, store, cam, counts, lanes)
+            for pending in self._pending if self.budget.merges else ():
+                self._merging_after_all(*pending)
+            self._pending = []
         elif ctx.moments is not None:
             ctx.moments.count = cam.slot
             self.pilot.costs.merge_eta = self.merge_eta(index)
@@ -702,37 +695,48 @@ class Renderer:
         self.film.camera_samples += lanes
         self.path_tracer_spp += n_pixels * spp / self.pixels
 
-    def _pilot_pass(self, index, ctx, store, cam, camera_rays, light_rays, lanes):
-        """Record a pilot pass's counts; after the last one, choose the budget."""
-        stored = 0 if store is None else store.vertices.size()
-        share = 1.0
-        if index == 0:
-            # The camera rays a light_first_hits budget would still trace: z_1's, and
-            # every ray of a lane that went on from z_1 through a delta lobe.
-            kept = dr.sum(dr.select(cam.specular_z1, cam.rays, dr.minimum(cam.rays, 1)))
-            share = float(kept[0]) / max(camera_rays, 1)
-        self.pilot.record(index, lanes, camera_rays, ctx.light_count, light_rays, stored, share)
-        if index == Pilot.PASSES - 1:
-            ctx.moments.count = cam.slot
-            # Where a third pass completes the round, the light image is normalized by
-            # the round's camera samples and the means are the pilot's pixels'.
-            third = self._pilot_round > Pilot.PASSES
-            mean = self._luminance(sum(n * spp for _, n, spp in self.plan[:self._pilot_round])
-                                   if third else None)
-            filled = self._pilot_pixels(mean.shape) if third else None
-            self.pilot.pilot_eta = ctx.mis_rates[2]
-            self.pilot.costs.merge_eta = self.merge_eta(self._pilot_round - 1)
-            self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean,
-                                             self.plan[index][2], filled).budget
-            self._replan(self._pilot_round - 1)
+    @staticmethod
+    def _pilot_counts(cam) -> tuple:
+        """Sums of the pilot pass's camera walk (optimizer.Pilot.record): the
+        connections' rays; the rays a light_first_hits budget would still trace (z_1's,
+        and every ray of a lane that went on from z_1 through a delta lobe); with
+        merging, the merge queries and the grid items they visited."""
+        walk = cam.rays - cam.links
+        sums = (dr.sum(cam.links),
+                dr.sum(dr.select(cam.specular_z1, walk, dr.minimum(walk, 1))))
+        if cam.merges is not None:
+            sums += (dr.sum(cam.merges), dr.sum(cam.merge_items))
+        return sums
 
-    def _pilot_pixels(self, shape) -> np.ndarray:
-        """The crop pixels (H, W) of a quarter-film pilot's passes: those whose index
-        in the sampled grid (camera.sample_rays: the crop plus a sampled filter border)
-        is even."""
+    def _pilot_pass(self, index, ctx, store, cam, counts: list, lanes: int):
+        """Record the pilot pass's counts and choose the budget."""
+        camera_rays, light_rays, links, kept = counts[:4]
+        walk_rays = camera_rays - links
+        stored = 0 if store is None else store.vertices.size()
+        self.pilot.record(lanes, walk_rays, links, ctx.light_count, light_rays, stored,
+                          kept / max(walk_rays, 1))
+        if len(counts) > 4:
+            self.pilot.record_merging(lanes, counts[4], counts[5], ctx.mis_rates[2])
+        ctx.moments.count = cam.slot
+        # Where later passes complete the round, the light image is normalized by the
+        # round's camera samples and the means are the pilot's pixels'.
+        partial = self._pilot_round > Pilot.PASSES
+        mean = self._luminance(sum(n * spp for _, n, spp in self.plan[:self._pilot_round])
+                               if partial else None)
+        filled = self._pilot_pixels(mean.shape, self._stride[index]) if partial else None
+        self.pilot.pilot_eta = ctx.mis_rates[2]
+        self.pilot.costs.merge_eta = self.merge_eta(self._pilot_round - 1)
+        self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean,
+                                         self.plan[index][2], filled).budget
+        self._replan(self._pilot_round - 1)
+
+    def _pilot_pixels(self, shape, stride: int) -> np.ndarray:
+        """The crop pixels (H, W) of a pilot pass over one pixel in ``stride``: those
+        whose index in the sampled grid (camera.sample_rays: the crop plus a sampled
+        filter border) is a multiple of it."""
         b = camera_stage.sampled_border(self.sensor.film())
         y, x = np.mgrid[0:shape[0], 0:shape[1]]
-        return ((y + b) * (shape[1] + 2 * b) + x + b) % 2 == 0
+        return ((y + b) * (shape[1] + 2 * b) + x + b) % stride == 0
 
     def _luminance(self, camera_samples: int | None = None) -> np.ndarray:
         """The image so far, (H, W): the mean of its colour channels; its light image
@@ -837,51 +841,59 @@ class Renderer:
                 + ("; its path-tracing passes run Mitsuba's path" if by_path else ""))
 
 
-# The calibration render: the Cornell box on a film of RES^2 pixels, so that each of
-# the pilot's passes takes a quarter of it at 1 sample (optimizer.Pilot.stride): 32761
-# lanes on a CPU, 2^18 on a GPU, the occupancy of real passes (on 2 cores the camera
-# walk timed 1.8x dearer per sample over 16384 lanes than over 32768; an H100 holds
-# 132 x 2048 threads).
-CALIBRATION_RES = {"llvm": 362, "cuda": 1024}
+# The calibration render: the Cornell box on a film of RES^2 pixels, so that the pilot
+# pass takes half of it at 1 sample (optimizer.Pilot.stride), and a pass of light and
+# path tracing on a film of half of it: 32768 lanes each on a CPU, 2^18 on a GPU, the
+# occupancy of real passes (on 2 cores the camera walk timed 1.8x dearer per
+# sample over 16384 lanes than over 32768; an H100 holds 132 x 2048 threads).
+CALIBRATION_RES = {"llvm": 256, "cuda": 725}
 
 
 def calibrate(repeats: int = 5) -> UnitCosts:
     """Measure this machine's unit costs for the current variant (units.py) and store
-    them: the kernel seconds of the pilot's walks on the Cornell box per unit of work
-    they counted, and Mitsuba's path per ray, each the median of ``repeats`` warm runs
+    them: the kernel seconds of the walks on the Cornell box per unit of work they
+    counted, and Mitsuba's path per ray, each the median of ``repeats`` warm runs
     (the first run, which compiles, is left out)."""
     variant = mi.variant()
     print("bdpt: measuring this machine's unit costs for %s, a few seconds (stored for "
           "later renders; 'bdpt calibrate' measures again)" % variant, file=sys.stderr, flush=True)
     res = CALIBRATION_RES["cuda" if variant.startswith("cuda") else "llvm"]
-    box = mi.cornell_box()
-    box["sensor"]["film"].update(width=res, height=res)
-    scene = mi.load_dict(box)
-    rows = [_calibration_run(scene, seed) for seed in range(repeats + 1)][1:]
+    scenes = []
+    for width, height in ((res, res), (res, res // 2)):
+        box = mi.cornell_box()
+        box["sensor"]["film"].update(width=width, height=height)
+        scenes.append(mi.load_dict(box))
+    rows = [_calibration_run(*scenes, seed) for seed in range(repeats + 1)][1:]
     measured = UnitCosts(*(float(v) for v in np.median(np.array(rows), axis=0)))
     units.save(measured)
     return measured
 
 
-def _pilot_timings(scene, seed: int, **settings):
-    """The pilot passes of a render, timed: (the Renderer, kernel seconds per camera
-    sample (light walk, camera walk, grid build) of each)."""
-    r = Renderer(scene, spp=16, seed=seed, max_depth=8, unit_costs=UnitCosts(), **settings)
+def _timed_pass(scene, seed: int, **settings):
+    """The first pass of a render at 1 sample per pixel, timed: (the Renderer, kernel
+    seconds per camera sample of its light walk, camera walk and grid build)."""
+    r = Renderer(scene, spp=16, seed=seed, max_depth=8, unit_costs=UnitCosts(),
+                 samples_per_pass=0 if settings.get("light_paths") is None else 1, **settings)
     r.timings = {}
     r.render_pass(0)
-    r.render_pass(1)
-    return r, [tuple(t / (n * spp) for t in r.timings[i])
-               for i, (_, n, spp) in zip((0, 1), r.plan)]
+    _, n, spp = r.plan[0]
+    return r, tuple(t / (n * spp) for t in r.timings[0])
 
 
-def _calibration_run(scene, seed: int) -> tuple:
-    """One run's unit costs, in UnitCosts' order."""
-    r, ((light0, camera0, _), (light1, camera1, _)) = _pilot_timings(scene, seed)
+def _calibration_run(scene, half, seed: int) -> tuple:
+    """One run's unit costs, in UnitCosts' order: a pass of light and path tracing
+    on ``half``, then the pilot pass (full BDPT) on ``scene``."""
+    r0, (light0, camera0, _) = _timed_pass(half, seed, light_paths=1, connections=0)
+    lanes0 = r0.plan[0][1] * r0.plan[0][2]
+    camera_rays0, light_rays0 = (n / lanes0 for n in r0.last_counts)
+    r, (light1, camera1, _) = _timed_pass(scene, seed)
     c = r.pilot.costs
-    camera_ray = camera0 / c.camera_rays
-    light_ray = light0 / c.light_rays           # one light subpath per camera sample
-    stored = max(light1 - light0, 0.0) / c.stored_per_path
-    connection = max(camera1 - camera0, 0.0) / max(c.connection_rays, 1e-9)
+    camera_ray = camera0 / camera_rays0
+    light_ray = light0 / light_rays0            # one light subpath per camera sample
+    # The pilot pass's walks less the same rays at those prices: its stored vertices
+    # and its connections.
+    stored = max(light1 - light_ray * c.light_rays, 0.0) / c.stored_per_path
+    connection = max(camera1 - camera_ray * c.camera_rays, 0.0) / max(c.connection_rays, 1e-9)
     path = mi.load_dict({"type": "path", "max_depth": 8})
     with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
         dr.kernel_history()
@@ -894,13 +906,13 @@ def _calibration_run(scene, seed: int) -> tuple:
 
 
 def _merge_units(scene, seed: int, camera1: float) -> tuple:
-    """(grid_vertex, merge_step): the pilot's BDPT pass again with merging (the same
+    """(grid_vertex, merge_step): the pilot pass again with merging (the same
     samples), its grid build per stored vertex and the camera walk's extra time per
     query step (8 per query and one per item visited, optimizer.Costs.merging).
     Spectral variants do not merge: 0, 0."""
     if mi.is_spectral:
         return 0.0, 0.0
-    r, (_, (_, camera, grid)) = _pilot_timings(scene, seed, merging=True)
+    r, (_, camera, grid) = _timed_pass(scene, seed, merging=True)
     c = r.pilot.costs
     steps = 8.0 * c.merges + c.merge_items * r.pilot.pilot_eta
     return (grid / max(c.stored_per_path, 1e-9),

@@ -81,6 +81,8 @@ class PathState:
     d_vm: mi.Float = None           # moment passes with merging: d_vc's merge part (mis.py)
     merges: mi.UInt32 = None        # camera walk with merging: merge queries (merge.visit)
     merge_items: mi.UInt32 = None   # the grid items those queries visited
+    links: mi.UInt32 = None         # camera walk, moment passes: shadow rays of the
+                                    # connections to stored vertices (of ``rays``)
 
     @property
     def d_vm_or_0(self):
@@ -88,9 +90,10 @@ class PathState:
 
     @staticmethod
     def start(ray, beta, d_vcm, d_vc, prev, active, medium=None, vm_shares=False,
-              merge_counts=False) -> "PathState":
+              merge_counts=False, link_counts=False) -> "PathState":
         """``medium``: the medium the first ray travels in (None: a scene without media);
-        ``vm_shares``: carry d_vm; ``merge_counts``: count merge work."""
+        ``vm_shares``: carry d_vm; ``merge_counts``: count merge work; ``link_counts``:
+        count the connections' rays apart."""
         n = dr.width(ray.o)
         media = medium is not None
         zero = dr.zeros(mi.UInt32, n) if merge_counts else None
@@ -106,7 +109,8 @@ class PathState:
                          medium=mi.MediumPtr(medium) if media else None,
                          sigma_prev=dr.ones(mi.Spectrum, n) if media else None,
                          d_vm=dr.zeros(mi.Float, n) if vm_shares else None,
-                         merges=zero, merge_items=mi.UInt32(zero) if merge_counts else None)
+                         merges=zero, merge_items=mi.UInt32(zero) if merge_counts else None,
+                         links=dr.zeros(mi.UInt32, n) if link_counts else None)
 
 
 def _point(p, n, time, wavelengths) -> mi.Interaction3f:
@@ -212,7 +216,8 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
     z0 = _point(rays.origin, mi.Normal3f(0.0), ctx.time, ctx.wavelengths)
     state = PathState.start(rays.ray, rays.weight, d_vcm, d_vc, z0, max_j is None or max_j >= 1,
                             ctx.media.camera_start() if ctx.media.present else None,
-                            vm_shares=_vm_shares(ctx), merge_counts=ctx.grid is not None)
+                            vm_shares=_vm_shares(ctx), merge_counts=ctx.grid is not None,
+                            link_counts=ctx.moments is not None)
 
     def step(state: PathState, u: DepthSamples, sampler):
         t = state.depth + 1
@@ -237,6 +242,8 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
             state.radiance, rays = connect.stored_vertices(
                 ctx, store, state, v, connectible & ctx.strategies.connects_at(t))
             state.rays += rays
+            if state.links is not None:
+                state.links += rays
         if ctx.grid is not None:                # vertex merging (merge.py)
             merged = merge.merge_at(ctx, store, state, v, merge.can_merge(
                 ctx.strategies, v, state.depth, connectible))

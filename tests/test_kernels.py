@@ -89,5 +89,5 @@ def test_a_pass_reads_the_host_a_few_times():
         dr.kernel_history()
         renderer.run_pass()
         copies.append(sum(e["type"] == dr.KernelType.Memcpy for e in dr.kernel_history()))
-    assert renderer.pilot is not None and len(copies) >= 3
+    assert renderer.pilot is not None and len(copies) >= 2
     assert max(copies) <= 6, copies

@@ -204,20 +204,21 @@ CROPPED = ('<rfilter type="gaussian"/><boolean name="sample_border" value="true"
 
 
 @pytest.mark.parametrize("film", ["box", "cropped", "large"])
-def test_the_pilot_round_is_unbiased_on_each_half_of_the_pixels(film, monkeypatch):
-    """Each pilot pass covers every other pixel and is a complete MIS estimator there:
-    its light image keeps the splats in its own pixels (film.py).  Before, the first
-    pass path-traced the even pixels and both passes' light images covered every
-    pixel at half their rate: a point-light caustic, which path tracing cannot
-    render, came out of the pilot at half its brightness (3% of a 16-spp render).
-    "large": a film whose pilot passes take one pixel in 4 each (Pilot.stride; here
-    by fewer pilot lanes), and a third pass the odd pixels with the budget chosen."""
-    text = open(scene_path("point-caustic.xml")).read()
-    if film == "cropped":
-        text = text.replace('<rfilter type="box"/>', CROPPED)
+def test_the_pilot_round_is_unbiased_on_each_part_of_the_pixels(film, monkeypatch):
+    """The pilot pass and each pass that completes its round are complete MIS
+    estimators of their pixels: the light image keeps the splats in the pass's own
+    pixels (film.py).  (With the first of two pilot passes path-tracing the even
+    pixels and both passes' light images covering every pixel at half their rate, a
+    point-light caustic, which path tracing cannot render, came out of the pilot at
+    half its brightness, 3% of a 16-spp render.)  "large": a film whose pilot pass
+    takes every other pixel (Pilot.stride; here by fewer pilot lanes), and a second
+    pass the odd ones with the budget chosen."""
     if film == "large":
         monkeypatch.setitem(optimizer.PILOT_LANES, "llvm", 512)
         monkeypatch.setitem(optimizer.PILOT_LANES, "cuda", 512)
+    text = open(scene_path("point-caustic.xml")).read()
+    if film == "cropped":
+        text = text.replace('<rfilter type="box"/>', CROPPED)
     scene = mi.load_string(text, resx=64, resy=64)
     ours = [pilot_round(scene, seed) for seed in range(8)]
     ref = [mitsuba_render(scene, "ptracer", 64, seed=400 + s, max_depth=8) for s in range(8)]
@@ -226,7 +227,7 @@ def test_the_pilot_round_is_unbiased_on_each_half_of_the_pixels(film, monkeypatc
     (w, h), b = f.crop_size(), border
     y, x = np.mgrid[0:h, 0:w]
     grid = (y + b) * (w + 2 * b) + x + b                     # the pilot's pixel index
-    stride = 4 if film == "large" else 2
+    stride = 2 if film == "large" else 1
     for part in range(stride):
         assert_statistically_equal(ours, ref, blocks=2, mask=grid % stride == part,
                                    what="pilot, pixels %d of every %d" % (part, stride))
@@ -234,9 +235,9 @@ def test_the_pilot_round_is_unbiased_on_each_half_of_the_pixels(film, monkeypatc
 
 @pytest.mark.parametrize("name, light", [("glass-pane.xml", False), ("point-caustic.xml", True)])
 def test_a_large_film_pilots_on_half_its_pixels(name, light):
-    """Past 8 x optimizer.PILOT_LANES pixels the pilot passes take pixels 0 and 2 of
-    every 4, and a third pass of the round the odd ones with the budget chosen: the
-    round ends after it, not before, and the decision is the one smaller films make
+    """Past 2 x optimizer.PILOT_LANES pixels the pilot pass takes the even pixels and
+    a second pass of the round the odd ones with the budget chosen: the round ends
+    after it, not before, and the decision is the one smaller films make
     (test_path_tracing_behind_a_glass_pane, test_light_subpaths_for_a_point_caustic)."""
     res = int(np.ceil(np.sqrt(8 * optimizer._pilot_lanes())))     # 2.1M pixels on a GPU
     scene = mi.load_file(scene_path(name), resx=res, resy=res)
@@ -244,19 +245,18 @@ def test_a_large_film_pilots_on_half_its_pixels(name, light):
     # without a pilot; the budget covers the pilot round here (the GPU's film).
     r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=64, seed=1, max_depth=8,
                                                   memory_budget=8 << 30)
-    assert [p[0] for p in r.plan[:3]] == [0, 2, 1] and [r._stride[i] for i in range(3)] == [4, 4, 2]
+    assert [p[0] for p in r.plan[:2]] == [0, 1] and [r._stride[i] for i in range(2)] == [2, 2]
     r.run_pass()
-    for _ in range(2):
-        assert not r.at_round_end
-        r.run_pass()
+    assert not r.at_round_end
+    r.run_pass()
     assert r.at_round_end and r.spp_done == 1
     assert (r.budget.light_ratio > 0) == light, r.pilot.decision.describe()
 
 
-def test_the_pixels_of_a_quarter_film_pilot_in_a_cropped_film(monkeypatch):
-    """The means of a quarter-film pilot average the crop pixels its passes sampled:
-    every camera ray of its two passes that lands in the crop window lands on one, and
-    every ray of the third pass on another.  The sampled grid has a filter border of
+def test_the_pixels_of_a_half_film_pilot_in_a_cropped_film(monkeypatch):
+    """The means of a half-film pilot average the crop pixels its pass sampled: every
+    camera ray of the pilot pass that lands in the crop window lands on one, and every
+    ray of the pass after it on another.  The sampled grid has a filter border of
     1 pixel around a crop window of even width, so the grid's parity is not the crop
     window's (which it took at first)."""
     monkeypatch.setitem(optimizer.PILOT_LANES, "llvm", 64)
@@ -265,10 +265,10 @@ def test_the_pixels_of_a_quarter_film_pilot_in_a_cropped_film(monkeypatch):
     text = open(scene_path("point-caustic.xml")).read().replace('<rfilter type="box"/>', cropped)
     scene = mi.load_string(text, resx=64, resy=64)
     r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=64, seed=1, max_depth=8)
-    assert r._pilot_round == 3
+    assert r._pilot_round == 2
     (w, h) = scene.sensors()[0].film().crop_size()
-    filled = r._pilot_pixels((h, w)).ravel()
-    for index, expect in ((0, True), (1, True), (2, False)):
+    filled = r._pilot_pixels((h, w), 2).ravel()
+    for index, expect in ((0, True), (1, False)):
         offset, n, spp = r.plan[index]
         rays = r.camera.sample_rays(r._sampler(index, 0, n * spp, spp), offset, n, spp,
                                     r._stride[index])
@@ -318,16 +318,14 @@ def test_a_sample_is_not_its_own_mean(pixel):
 
 
 def test_costs_are_the_pilots_counts_priced_by_unit_costs():
-    """Per camera sample: the first pass's camera rays; per light subpath its light
-    rays; the BDPT pass's extra camera rays are its connections, and its stored
-    vertices the storing; each priced by its unit cost (units.UnitCosts), path
-    tracing by Mitsuba's path where that renders it."""
+    """Per camera sample: the pilot's camera-walk rays and its connections' rays; per
+    light subpath its light rays and its stored vertices; each priced by its unit
+    cost (units.UnitCosts), path tracing by Mitsuba's path where that renders it."""
     units = UnitCosts(camera_ray=1.0, light_ray=10.0, stored_vertex=100.0, connection=1000.0,
                       path_ray=0.5)
     pilot = Pilot(False, units=units)
-    pilot.record(0, lanes=2, camera_rays=4, light_subpaths=2, light_rays=6, stored=0,
-                 first_hit_share=0.5)
-    pilot.record(1, lanes=1, camera_rays=5, light_subpaths=1, light_rays=3, stored=3)
+    pilot.record(lanes=2, walk_rays=4, connection_rays=6, light_subpaths=2, light_rays=6,
+                 stored=6, first_hit_share=0.5)
     c = pilot.costs
     assert (c.camera_rays, c.light_rays, c.connection_rays, c.stored_per_path) == (2, 3, 3, 3)
     assert c.of(Budget(0.0, 0)) == 2.0
@@ -466,8 +464,8 @@ def test_re_decisions_after_4_16_and_64_times_the_pilots_samples():
     while not r.done:
         r.run_pass()
     assert r.plan[0][2] == 4 and {p[2] for p in r.plan} == {4}
-    # the passes end at 8, 12, 16, ..., 300 spp
-    assert sorted(r._moment_passes) == [2 + (16 - 8) // 4, 2 + (64 - 8) // 4, 2 + (256 - 8) // 4]
+    # the passes end at 4, 8, 12, ..., 300 spp
+    assert sorted(r._moment_passes) == [16 // 4 - 1, 64 // 4 - 1, 256 // 4 - 1]
     assert [spp for spp, _ in r.pilot.rounds] == [16, 64, 256]
     text = r.result().stats["decision"]
     assert all("after %d spp light_paths=" % spp in text for spp in (16, 64, 256)), text
