@@ -284,14 +284,16 @@ def test_time_budget(tmp_path):
 
 
 def test_a_time_budget_spent_in_the_pilot_stops_after_its_round(tmp_path):
-    """The default budget's pilot is one round of two passes (the even pixels, then the
-    odd ones); a time budget spent in the first stopped there and wrote the odd pixels
-    black (seen on a GPU, whose first pass compiled for longer than the budget)."""
+    """On a large film the default budget's pilot round is two passes (the pilot on
+    the even pixels, then the odd ones with the budget chosen: optimizer.Pilot.stride,
+    here past 2 x 16384 pixels at 1 spp per pass); a time budget spent in the first
+    stopped there and wrote the odd pixels black (seen on a GPU, whose first pass
+    compiled for longer than the budget)."""
     out = tmp_path / "pilot.exr"
-    p = ok(run_cli("render", CORNELL, *TINY, "--spp", 64, "--samples-per-pass", 4,
-                   "--max-depth", 3, "--time", 0.001, "-o", out))
+    p = ok(run_cli("render", CORNELL, "-D", "resx=256", "-D", "resy=128", "--spp", 16,
+                   "--samples-per-pass", 1, "--max-depth", 3, "--time", 0.001, "-o", out))
     _, meta = read_exr(out)
-    assert meta["spp"] == 4 and meta["passes"] == 2 and "time budget" in p.stderr
+    assert meta["spp"] == 1 and meta["passes"] == 2 and "time budget" in p.stderr
 
 
 def test_time_budget_on_a_film_split_in_pixel_ranges(tmp_path):
@@ -312,12 +314,12 @@ def test_time_budget_on_a_film_split_in_pixel_ranges(tmp_path):
 
 def test_time_and_checkpoint_use_many_passes(tmp_path):
     out = tmp_path / "ck.exr"
-    # --time / --checkpoint without --samples-per-pass: spp/16 per pass; with the
-    # default "auto" budget the first round is the optimizer's two half passes.
+    # --time / --checkpoint without --samples-per-pass: spp/16 per pass, the default
+    # "auto" budget's pilot pass among them.
     ok(run_cli("render", CORNELL, *TINY, "--spp", 32, "--max-depth", 3, "--time", 300,
                "--checkpoint", 0.01, "-o", out))
     _, meta = read_exr(out)
-    assert meta["spp"] == 32 and meta["passes"] == 16 + 1 and meta["samples_per_pass"] == 2
+    assert meta["spp"] == 32 and meta["passes"] == 16 and meta["samples_per_pass"] == 2
     assert "chose" in meta["budget_decision"]
     # The memory budget as resolved here ("auto" follows the machine: backend.py), so
     # that the header says which passes, and so which image, the seed gave.
