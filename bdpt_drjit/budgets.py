@@ -18,7 +18,7 @@ A budget is the pair (N_L / N_C, connections per camera vertex):
 
 Every budget is a valid MIS combination (mis.py's rates), so any sequence of
 budgets gives an unbiased image.  With ``light_paths`` / ``connections`` left at
-"auto", optimizer.py chooses the budget from pilot passes.
+"auto", optimizer.py chooses the budget from a pilot pass.
 """
 from __future__ import annotations
 

@@ -228,7 +228,7 @@ def _cached_vertices(ctx, store, state, v, connectible):
 def connect_vertices(ctx, light, active, cam, v_c):
     """s, t >= 2: connect the stored light vertex y_{s-1} (``light``) to the camera
     vertex z_{t-1} the camera walk is at (``v_c``, state ``cam``).  Returns the
-    contribution, the shadow rays traced and (pilot passes) the moment groups."""
+    contribution, the shadow rays traced and (moment passes) the moment groups."""
     v_l = light.record.vertex(v_c.si.time, v_c.si.wavelengths, ctx.media.present)
     d = v_l.p - v_c.p
     dist2 = dr.squared_norm(d)

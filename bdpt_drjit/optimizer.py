@@ -552,7 +552,7 @@ def _blur(image: np.ndarray, radius: int = BLUR) -> np.ndarray:
 
 
 class Pilot:
-    """The pilot passes of an "auto" render (module docstring) and its decision."""
+    """The pilot pass of an "auto" render (module docstring) and its decision."""
 
     PASSES = 1
 

@@ -341,7 +341,7 @@ class Renderer:
                                 self._accepted_count)
         self.pilot, self._stride, self._path_tracer = None, {}, None
         self._moment_passes = set()     # passes after the pilot that re-decide
-        self._pending = []              # vcm pilot passes merged for moments only
+        self._pending = []              # the vcm pilot pass, merged for moments only
         self._pilot_round = 0           # passes of the round the pilot opens (2 or 3)
         if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
             self._plan_pilot(max_lanes)
@@ -834,7 +834,7 @@ class Renderer:
                     "full BDPT: strategy images" if self.strategy_images else
                     "full BDPT: fewer than %d spp, or a film split in pixel ranges" % MIN_SPP)
         if self.pilot.decision is None:
-            return "pilot passes pending"
+            return "pilot pass pending"
         by_path = self._path_tracer is not None and self.budget == PATH_TRACING
         rounds = "".join("; after %g spp %s" % (spp, b) for spp, b in self.pilot.rounds)
         return ((self.pilot.first or self.pilot.decision).describe() + rounds

@@ -86,7 +86,7 @@ PARAMS = (
           "(then merging is biased, not consistent)."),
     Param("light_paths", str, "auto", "Light subpaths per camera sample (a number >= 0; "
           "0 = path tracing with next-event estimation), or ``auto``: chosen for "
-          "efficiency from pilot passes, their counted work priced by the machine's unit "
+          "efficiency from a pilot pass, its counted work priced by the machine's unit "
           "costs (budgets.py, units.py)."),
     Param("connections", str, "auto", "Connections per camera vertex: ``all`` (every "
           "vertex of its light subpath), a count M (M vertices drawn from all the "

@@ -35,7 +35,7 @@ class LightVertex:
     beta: mi.Spectrum                # throughput from y_0 to here (Russian roulette included)
     d_vcm: mi.Float                  # MIS chain state (mis.py)
     d_vc: mi.Float
-    d_end: mi.Float                  # pilot passes: the chain's far end (mis.py)
+    d_end: mi.Float                  # moment passes: the chain's far end (mis.py)
     d_vm: mi.Float                   # moment passes with merging: d_vc's merge part
     s: mi.UInt32                     # the light vertex count of its strategies: s = i + 1
     next: mi.UInt32                  # the lane's next stored vertex, or NONE
@@ -54,7 +54,7 @@ class Splat:
     value: mi.Spectrum
     s: mi.UInt32                     # its strategy (s, 1)
     lane: mi.UInt32                  # the light subpath's lane (its wavelengths)
-    u_pt: mi.Float                   # pilot passes: balance-weight groups (optimizer.py)
+    u_pt: mi.Float                   # moment passes: balance-weight groups (optimizer.py)
     u_lt: mi.Float
     u_vm: mi.Float                   # (merging's share)
 

@@ -63,7 +63,7 @@ class PathState:
     eta: mi.Float           # product of relative IORs crossed (roulette, as Mitsuba's)
     d_vcm: mi.Float         # MIS chain state at the ray's origin (mis.py)
     d_vc: mi.Float
-    d_end: mi.Float         # pilot passes: the chain's far end (mis.end_after_scatter)
+    d_end: mi.Float         # moment passes: the chain's far end (mis.end_after_scatter)
     prev: mi.Interaction3f  # the ray's origin vertex (pdf queries of the next one)
     depth: mi.UInt32        # j of the vertex z_j (or i of y_i) the ray will hit
     active: mi.Bool         # the subpath goes on
@@ -74,7 +74,7 @@ class PathState:
     radiance: mi.Spectrum   # camera walk: sum of this sample's strategies
     hit: mi.Bool            # camera walk: the path reached an opaque surface (film alpha)
     last_item: mi.UInt32    # light walk: this lane's last stored vertex (or NONE)
-    slot: mi.UInt32         # camera walk, pilot passes: moment samples recorded
+    slot: mi.UInt32         # camera walk, moment passes: moment samples recorded
     specular_z1: mi.Bool    # camera walk: z_1 scattered through a delta lobe
     medium: mi.MediumPtr = None     # media: the medium the ray travels in
     sigma_prev: mi.Spectrum = None  # media: sigma_t at the ray's origin vertex (Vertex.sigma_t)

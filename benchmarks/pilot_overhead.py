@@ -33,9 +33,9 @@ def timed_render(scene, spp: int, seed: int) -> dict:
         dr.sync_thread()
         passes.append(time.perf_counter() - t)
         if index < getattr(self, "_pilot_round", optimizer.Pilot.PASSES):
-            # The pilot's round (a third pass gives the pixels the pilot passes left
-            # their samples on a large film): its samples per pixel of the film.
-            # (getattr: checkouts older than the third pass, for A/B runs.)
+            # The pilot's round (on a large film a second pass gives the pixels the
+            # pilot pass left their samples): its samples per pixel of the film.
+            # (getattr: checkouts older than _pilot_round, for A/B runs.)
             pilot_spp.append(self.plan[index][1] * self.plan[index][2] / self.pixels)
 
     def timed_decide(self, *args):
