@@ -85,10 +85,10 @@ RATIOS = (0.0, 0.25, 0.5, 1.0, 2.0)
 FIRST_HIT_RATIOS = (2.0, 4.0)   # light subpaths per camera sample of light_first_hits ones
 CACHE_PICKS = (1, 2)
 MIN_SPP = 16                   # fewer samples: the pilot would cost too much
-# A pilot pass's samples at least (for its moments), and the calibration's occupancy
-# (render.calibrate): a kernel's time grows with its work from about a wave of threads
-# on a GPU (an H100 holds 132 x 2048).
-PILOT_LANES = {"llvm": 1 << 14, "cuda": 1 << 18}
+# A pilot pass's samples at least, for its moments.  Its kernels' time is what a pass
+# of that many BDPT samples costs: a full-film pilot at 128x128 (16384 lanes) took
+# 90-180 ms against 35-65 ms for half of it (glass pane, loaded).
+PILOT_LANES = {"llvm": 1 << 13, "cuda": 1 << 17}
 BLUR = 4                       # radius of the box filter on the pilot's mean image
 
 

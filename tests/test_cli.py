@@ -286,7 +286,7 @@ def test_time_budget(tmp_path):
 def test_a_time_budget_spent_in_the_pilot_stops_after_its_round(tmp_path):
     """On a large film the default budget's pilot round is two passes (the pilot on
     the even pixels, then the odd ones with the budget chosen: optimizer.Pilot.stride,
-    here past 2 x 16384 pixels at 1 spp per pass); a time budget spent in the first
+    here past 2 x 8192 pixels at 1 spp per pass); a time budget spent in the first
     stopped there and wrote the odd pixels black (seen on a GPU, whose first pass
     compiled for longer than the budget)."""
     out = tmp_path / "pilot.exr"

@@ -239,7 +239,7 @@ def test_a_large_film_pilots_on_half_its_pixels(name, light):
     a second pass of the round the odd ones with the budget chosen: the round ends
     after it, not before, and the decision is the one smaller films make
     (test_path_tracing_behind_a_glass_pane, test_light_subpaths_for_a_point_caustic)."""
-    res = int(np.ceil(np.sqrt(8 * optimizer._pilot_lanes())))     # 2.1M pixels on a GPU
+    res = int(np.ceil(np.sqrt(8 * optimizer._pilot_lanes())))     # 1M pixels on a GPU
     scene = mi.load_file(scene_path(name), resx=res, resy=res)
     # A film of more pixels than a pass's memory holds lanes renders in pixel ranges,
     # without a pilot; the budget covers the pilot round here (the GPU's film).
