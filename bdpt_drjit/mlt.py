@@ -350,6 +350,7 @@ class MLTRenderer:
         # then _direct's; b_chains the chains' brightness (b less b_direct if apart)
         self.b_direct, self.b_chains, self.direct_lanes = 0.0, 0.0, 0
         self.direct_film = FilmAccumulator(film, coalesce=False)
+        self.film_steps = pss.film_steps(int(max(film.crop_size())))
         self._configure()
         start = time.perf_counter()
         self.b, self.state = self.bootstrap()
@@ -579,7 +580,8 @@ class MLTRenderer:
         chain = dr.arange(mi.UInt32, n)
         step_key = self._key(0x17, i)
         large = pss.hash_uniform(step_key, chain, 0) < dr.opaque(mi.Float, self.p_large)
-        y = {name: pss.propose(vector, self.dims[name], large, self._key(0x17, i, k))
+        y = {name: pss.propose(vector, self.dims[name], large, self._key(0x17, i, k),
+                               self.film_steps if name == "camera_u" else None)
              for k, (name, vector) in enumerate(x.vectors().items())}
         dr.eval(y)
         ev = self._evaluate_proposal(self._stream_keys(0x7A, i), chain, y)
