@@ -77,8 +77,9 @@ def main(argv=None):
     ap.add_argument("--chains", type=int, default=0, help="0: automatic (mlt.py)")
     ap.add_argument("--bootstrap", type=int, default=0, help="0: automatic (mlt.py)")
     ap.add_argument("--plan-mpp", type=int, default=0,
-                    help="chains and bootstrap (where 0) as pssmlt chooses them for a render "
-                         "of this many mutations per pixel (0: unbounded, the maximum)")
+                    help="chains (where 0) as the automatic plan chooses them for a render "
+                         "of this many mutations per pixel (0: unbounded, the maximum); the "
+                         "bootstrap is the automatic one for those chains unless --bootstrap")
     ap.add_argument("--methods", default="mlt,pssmlt,bdpt (auto),bdpt (Veach)")
     ap.add_argument("--mlt", action="append", default=[], metavar="K=V,K=V",
                     help="a further pssmlt method with these parameters (repeatable), e.g. "
@@ -103,10 +104,9 @@ def main(argv=None):
     print("reference: %d spp of bdpt in %.0f s, mean %.6g; its own relMSE ~ %.4g (in every "
           "figure below; 'less ref' subtracts it)"
           % (args.ref_spp, time.perf_counter() - t0, ref.mean(), ref_err))
-    if args.plan_mpp:
-        chains, boot = mlt.automatic_plan(args.plan_mpp * args.res * args.res, args.chains,
-                                          args.bootstrap)
-        args.chains, args.bootstrap = chains, boot
+    if args.plan_mpp:       # the chains of that plan; the bootstrap stays automatic
+        args.chains, _ = mlt.automatic_plan(args.plan_mpp * args.res * args.res, args.chains,
+                                            args.bootstrap)
     methods = {"pssmlt": lambda s: timed_mlt(scene, args.seconds, s, not args.no_mis,
                                              args.chains, args.bootstrap),
                "mlt": lambda s: timed_mlt(scene, args.seconds, s, not args.no_mis, args.chains,
