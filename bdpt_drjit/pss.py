@@ -44,9 +44,9 @@ S1, S2 = 1.0 / 1024.0, 1.0 / 64.0
 # chain then moves over the image, where the pixel is a weak constraint on the path
 # (a connection from the first camera vertex usually survives a move of a few
 # pixels).  MMLT on door-ajar.xml 64x64 (16384 chains, 1M bootstrap samples, seeds
-# 1-3, relMSE at a fixed number of iterations, the same cost): 0.01 gap 0.246 ->
-# 0.185, 0.05 gap 0.048 -> 0.032; the diffuse box 0.0098 -> 0.0072; PSSMLT 0.01 gap
-# 0.331 -> 0.247 (benchmarks/RESULTS.md).  s2 of 0.025 / 0.1 / 0.178 of the side
+# 1-3, median relMSE at a fixed number of iterations, the same cost): 0.01 gap 0.243
+# -> 0.185, 0.05 gap 0.0485 -> 0.032; the diffuse box 0.0098 -> 0.0071; PSSMLT 0.01
+# gap 0.331 -> 0.247 (benchmarks/RESULTS.md).  s2 of 0.025 / 0.1 / 0.178 of the side
 # gave 0.204 / 0.198 / 0.217 on the 0.01 gap, s1 of 0.01 / 1 pixel 0.226 / 0.268.
 FILM_S1_PIXELS, FILM_S2 = 0.1, 0.05
 _ONE_MINUS_EPS = 0.99999994
