@@ -39,7 +39,10 @@ luminance, with u_c uniform in that strategy's interval: resampling in proportio
 the target over (k, u_c, u).  On the door (0.05 gap, 64x64, 65536 chains, 256
 mutations per pixel) pbrt's way started the chains on 4704 distinct samples and gave
 relMSE 0.55, this one 48337 and 0.059.  Lanes are then sorted by k and s, so a SIMD
-packet's lanes walk subpaths of like lengths.
+packet's lanes walk subpaths of like lengths.  An automatic bootstrap stops after the
+batch where the cells' effective sample size (sum L)^2 / sum L^2 reaches ESS_STOP x
+the planned chains (mlt.py): an easy scene (the diffuse box) then spends a quarter of
+its planned bootstrap, a hard one (the door's gaps) all or most of it.
 
 With separate direct samples (mlt.py), b_1 and b_2 go to them: the chains start on
 cells of length 3 up only, and c_k of k <= 2 is 0.
@@ -58,8 +61,9 @@ import numpy as np
 
 from . import pss
 from .chain_strategies import ChainStrategies  # noqa: F401  (mmlt.ChainStrategies)
-from .mlt import (BOOTSTRAP_LANES, DIRECT_LENGTH, DIRECT_SHARE, MIN_DIRECT_LANES,  # noqa: F401
-                  Chains, DirectLuminance, Evaluation, MLTRenderer, chains_for_ess)
+from .mlt import (BOOTSTRAP_LANES, DIRECT_LENGTH, DIRECT_SHARE, ESS_STOP,  # noqa: F401
+                  MIN_BOOTSTRAP, MIN_DIRECT_LANES, Chains, DirectLuminance, Evaluation,
+                  MLTRenderer, chains_for_ess)
 from .optimizer import luminance
 
 
@@ -164,7 +168,8 @@ class MMLTRenderer(MLTRenderer):
         if self.emitters.count == 0:            # black (support.check warned)
             return 0.0, None
         keys = self._stream_keys(0xB0)
-        targets, self.b_depths = self._bootstrap_targets(keys, self.bootstrap_samples)
+        targets, self.b_depths, self.bootstrap_samples = self._bootstrap_targets(
+            keys, self.bootstrap_samples)
         b = float(self.b_depths.sum())
         if b <= 0.0:
             return 0.0, None
@@ -184,20 +189,23 @@ class MMLTRenderer(MLTRenderer):
         return b, self._start(keys, self._resample(f_np))
 
     def _bootstrap_targets(self, keys, count: int):
-        """Per bootstrap sample 0 .. count - 1 (every coordinate hashed), with and
-        without the lengths 1 .. DIRECT_LENGTH (``[separate]``): its strategies'
-        luminance summed, f, and the sum of their squares (the start states are cells
-        (k, s) of samples: their effective sample size (sum L)^2 / sum L^2 is at least
-        that of f, whose cross terms it lacks); and the mean per path length, b_k."""
+        """Per bootstrap sample 0 .. n - 1 (every coordinate hashed), with and without
+        the lengths 1 .. DIRECT_LENGTH (``[separate]``): its strategies' luminance
+        summed, f, and the sum of their squares (the start states are cells (k, s) of
+        samples: their effective sample size (sum L)^2 / sum L^2 is at least that of
+        f, whose cross terms it lacks); the mean per path length, b_k; and n, the
+        samples drawn: ``count``, or (automatic bootstrap) fewer where both effective
+        sizes reach ESS_STOP x the planned chains first (``_enough``)."""
         self.strategies.set_lanes(None, None)
         depths = self.settings.max_depth
         f_all, sums, squares = ([], []), np.zeros(depths), np.zeros(2)
         batch = max(self.chains, BOOTSTRAP_LANES)
         k_of, _ = self._cell_table()
         far = k_of > DIRECT_LENGTH
-        for start in range(0, count, batch):
-            n = min(batch, count - start)
-            ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, start)
+        done = 0
+        while done < count and not (done and self._enough(done, f_all, squares)):
+            n = min(batch, count - done)
+            ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, done)
             self.images = StrategyLuminance(n, depths)
             ev = self._evaluate_vectors(n, keys, ident, {name: None for name in self.dims})
             self._put_direct(ev)
@@ -206,9 +214,23 @@ class MMLTRenderer(MLTRenderer):
             for j, cells_j in enumerate((per_cell, per_cell[:, far])):
                 squares[j] += float(np.sum(cells_j * cells_j))
                 f_all[j].append(cells_j.sum(axis=1))
+            done += n
         self.images = None
         targets = [(np.concatenate(f_all[j]), squares[j]) for j in range(2)]
-        return targets, sums / count
+        return targets, sums / done, done
+
+    def _enough(self, done: int, f_all, squares) -> bool:
+        """Whether an automatic bootstrap of ``done`` samples (at least MIN_BOOTSTRAP)
+        may stop: the effective sample size of its cells, with and without the direct
+        lengths, is at least ESS_STOP x the planned chains (each chain can start on a
+        state of its own; mlt.ESS_STOP)."""
+        if not self.automatic_bootstrap or done < MIN_BOOTSTRAP:
+            return False
+        for parts, square in zip(f_all, squares):
+            total = sum(float(part.sum()) for part in parts)
+            if square <= 0.0 or total * total / square < ESS_STOP * self.chains:
+                return False
+        return True
 
     def _cell_table(self):
         """(k, s) of the start states' cells: a strategy each, or (``multiplex="length"``)

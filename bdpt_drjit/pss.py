@@ -38,6 +38,17 @@ import mitsuba as mi
 # coordinate by s2 exp(-log(s2/s1) v), v uniform, in a random direction, wrapped
 # around [0,1): an exponential distribution of step sizes between s1 and s2.
 S1, S2 = 1.0 / 1024.0, 1.0 / 64.0
+# The film position (a camera stream's first two coordinates) takes wider steps, from
+# FILM_S1_PIXELS pixels to FILM_S2 of the image's side, log-uniform as Kelemen's (the
+# range of Veach's lens perturbation, 1997 sec. 11.4.3, starts at 0.1 pixel too): a
+# chain then moves over the image, where the pixel is a weak constraint on the path
+# (a connection from the first camera vertex usually survives a move of a few
+# pixels).  MMLT on door-ajar.xml 64x64 (16384 chains, 1M bootstrap samples, seeds
+# 1-3, median relMSE at a fixed number of iterations, the same cost): 0.01 gap 0.243
+# -> 0.185, 0.05 gap 0.0485 -> 0.032; the diffuse box 0.0098 -> 0.0071; PSSMLT 0.01
+# gap 0.331 -> 0.247 (benchmarks/RESULTS.md).  s2 of 0.025 / 0.1 / 0.178 of the side
+# gave 0.204 / 0.198 / 0.217 on the 0.01 gap, s1 of 0.01 / 1 pixel 0.226 / 0.268.
+FILM_S1_PIXELS, FILM_S2 = 0.1, 0.05
 _ONE_MINUS_EPS = 0.99999994
 _GOLDEN = 0x9E3779B9
 
@@ -64,7 +75,7 @@ def hash_uniform(key, identity, dim) -> mi.Float:
 
 
 def wrap(x: mi.Float) -> mi.Float:
-    """x mod 1, in [0,1) (a step moves at most 1/64, so one correction suffices)."""
+    """x mod 1, in [0,1) (a step moves less than 1/2, so one correction suffices)."""
     x = dr.select(x < 0.0, x + 1.0, x)
     x = dr.select(x >= 1.0, x - 1.0, x)
     return dr.clip(x, 0.0, _ONE_MINUS_EPS)
@@ -76,11 +87,12 @@ def small_step(x: mi.Float, u_size: mi.Float, u_sign: mi.Float, s1=S1, s2=S2) ->
     return wrap(dr.select(u_sign < 0.5, x + dv, x - dv))
 
 
-def propose(x: mi.Float, dims: int, large: mi.Bool, key) -> mi.Float:
+def propose(x: mi.Float, dims: int, large: mi.Bool, key, film=None) -> mi.Float:
     """The proposal y of every chain's vector (``x``: chains x dims, row per chain):
     a large step (``large``, per chain) redraws every coordinate uniformly, a small
     step moves each (eager: all ``dims`` of them).  ``key`` (opaque UInt32) keys this
-    iteration's numbers."""
+    iteration's numbers.  ``film`` (s1, s2), opaque Floats: the step sizes of each
+    row's first two coordinates, the film position (``film_steps``)."""
     n = dr.width(x)
     element = dr.arange(mi.UInt32, n)
     # dims a literal (fixed by max_depth, not per seed): LLVM divides by a constant
@@ -90,7 +102,20 @@ def propose(x: mi.Float, dims: int, large: mi.Bool, key) -> mi.Float:
     bits = hash_bits(key, element, 0)
     u = mi.Float(bits >> 8) * (1.0 / (1 << 24))
     u_sign = dr.select((bits & 1) == 0, 0.0, 1.0)      # a bit apart from u's 24
-    return dr.select(chain_large, u, small_step(x, u, u_sign))
+    if film is None:
+        return dr.select(chain_large, u, small_step(x, u, u_sign))
+    on_film = (element % dims) < 2
+    s1 = dr.select(on_film, film[0], S1)
+    s2 = dr.select(on_film, film[1], S2)
+    return dr.select(chain_large, u, small_step(x, u, u_sign, s1, s2))
+
+
+def film_steps(resolution: int) -> tuple:
+    """(s1, s2) of the film position's small steps on a film of ``resolution`` pixels
+    on its longer side (FILM_S1_PIXELS, FILM_S2), opaque: a resolution compiles no
+    kernel of its own."""
+    s1 = min(FILM_S1_PIXELS / max(resolution, 1), 0.5 * FILM_S2)
+    return dr.opaque(mi.Float, s1), dr.opaque(mi.Float, FILM_S2)
 
 
 def hashed_vectors(key, identity: mi.UInt32, dims: int) -> mi.Float:

@@ -64,6 +64,22 @@ def timed_path(scene, seconds, seed, chunk=16):
     return _lum(total / renders), time.perf_counter() - start, chunk * renders
 
 
+def reference(scene, path, res, ref_spp, gap_start):
+    """(luminance R, eps, R's own relMSE): the mean of 8 BDPT renders of ref_spp / 8
+    spp each, cached in /tmp by its parameters."""
+    cache = Path("/tmp/mlt_ref_%s_%d_%d_%g.npy" % (Path(path).stem, res, ref_spp, gap_start))
+    if cache.exists():
+        refs = list(np.load(cache))
+    else:
+        refs = [_lum(bdpt_drjit.render(scene, spp=ref_spp // 8, seed=1000 + k,
+                                       max_depth=8).image) for k in range(8)]
+        np.save(cache, np.array(refs))
+    ref = np.mean(refs, axis=0)
+    ref_var = np.var(refs, axis=0, ddof=1) / 8
+    eps = (0.01 * ref.mean()) ** 2
+    return ref, eps, float(np.mean(ref_var / (ref ** 2 + eps)))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=15.0)
@@ -77,8 +93,9 @@ def main(argv=None):
     ap.add_argument("--chains", type=int, default=0, help="0: automatic (mlt.py)")
     ap.add_argument("--bootstrap", type=int, default=0, help="0: automatic (mlt.py)")
     ap.add_argument("--plan-mpp", type=int, default=0,
-                    help="chains and bootstrap (where 0) as pssmlt chooses them for a render "
-                         "of this many mutations per pixel (0: unbounded, the maximum)")
+                    help="chains (where 0) as the automatic plan chooses them for a render "
+                         "of this many mutations per pixel (0: unbounded, the maximum); the "
+                         "bootstrap is the automatic one for those chains unless --bootstrap")
     ap.add_argument("--methods", default="mlt,pssmlt,bdpt (auto),bdpt (Veach)")
     ap.add_argument("--mlt", action="append", default=[], metavar="K=V,K=V",
                     help="a further pssmlt method with these parameters (repeatable), e.g. "
@@ -88,25 +105,13 @@ def main(argv=None):
     scene = mi.load_file(args.scene, resx=args.res, resy=args.res,
                          **({"gap_start": args.gap_start} if door else {}))
     t0 = time.perf_counter()
-    cache = Path("/tmp/mlt_ref_%s_%d_%d_%g.npy" % (Path(args.scene).stem, args.res, args.ref_spp,
-                                                   args.gap_start))
-    if cache.exists():
-        refs = list(np.load(cache))
-    else:
-        refs = [_lum(bdpt_drjit.render(scene, spp=args.ref_spp // 8, seed=1000 + k,
-                                       max_depth=8).image) for k in range(8)]
-        np.save(cache, np.array(refs))
-    ref = np.mean(refs, axis=0)
-    ref_var = np.var(refs, axis=0, ddof=1) / 8
-    eps = (0.01 * ref.mean()) ** 2
-    ref_err = float(np.mean(ref_var / (ref ** 2 + eps)))
+    ref, eps, ref_err = reference(scene, args.scene, args.res, args.ref_spp, args.gap_start)
     print("reference: %d spp of bdpt in %.0f s, mean %.6g; its own relMSE ~ %.4g (in every "
           "figure below; 'less ref' subtracts it)"
           % (args.ref_spp, time.perf_counter() - t0, ref.mean(), ref_err))
-    if args.plan_mpp:
-        chains, boot = mlt.automatic_plan(args.plan_mpp * args.res * args.res, args.chains,
-                                          args.bootstrap)
-        args.chains, args.bootstrap = chains, boot
+    if args.plan_mpp:       # the chains of that plan; the bootstrap stays automatic
+        args.chains, _ = mlt.automatic_plan(args.plan_mpp * args.res * args.res, args.chains,
+                                            args.bootstrap)
     methods = {"pssmlt": lambda s: timed_mlt(scene, args.seconds, s, not args.no_mis,
                                              args.chains, args.bootstrap),
                "mlt": lambda s: timed_mlt(scene, args.seconds, s, not args.no_mis, args.chains,

@@ -104,6 +104,25 @@ def test_automatic_chains_follow_the_cells_effective_size():
     assert a.chains & (a.chains - 1) == 0
 
 
+def test_automatic_bootstrap_stops_at_the_chains_effective_size():
+    """An automatic bootstrap stops after the batch where its cells' effective sample
+    size reaches ESS_STOP x the planned chains (the box: after 131072 of 262144
+    planned samples), and the render is then the one of that many samples given
+    explicitly (b, the direct image's normalization and the chains' start alike)."""
+    from bdpt_drjit import mlt
+    scene = _box()
+    kw = dict(seed=3, mutations_per_pixel=256, chains=32768, max_depth=5)
+    auto = mmlt.MMLTRenderer(scene, **kw)
+    assert mlt.automatic_plan(256 * 256, 32768)[1] == 262144
+    assert auto.bootstrap_samples == 131072
+    fixed = mmlt.MMLTRenderer(scene, bootstrap_samples=131072, **kw)
+    for r in (auto, fixed):
+        r.run_iteration()
+    assert auto.b == fixed.b and auto.direct_lanes == fixed.direct_lanes > 0
+    assert np.allclose(auto.result().image, fixed.result().image, rtol=1e-5, atol=1e-8)
+    assert auto.result().stats["bootstrap_samples"] == 131072
+
+
 def test_strategy_stream_keeps_its_target():
     """Chains on u_c alone, k = 4: target (k + 1) L_s with L = (1, 0, 3, 0.2, 0), started
     by the bootstrap's rule (a strategy in proportion to L, u_c uniform in its

@@ -46,7 +46,7 @@ def _bin_probabilities():
     return p / p.sum()
 
 
-def _run_chains(x0, steps, p_large, asymmetric=False, seed=3):
+def _run_chains(x0, steps, p_large, asymmetric=False, seed=3, film=None):
     x = mi.Float(x0)
     n = dr.width(x)
     fx = _target(x)
@@ -58,7 +58,7 @@ def _run_chains(x0, steps, p_large, asymmetric=False, seed=3):
             y = pss.wrap(x + pss.S2 * dr.exp(-dr.log(pss.S2 / pss.S1)
                                              * pss.hash_uniform(key, chain, 0)))
         else:
-            y = pss.propose(x, 1, large, key)
+            y = pss.propose(x, 1, large, key, film)
         fy = _target(y)
         a = pss.acceptance(fx, fy)
         accept = pss.hash_uniform(key, chain, 1 << 21) < a
@@ -101,6 +101,30 @@ def test_small_step_sizes_are_kelemens():
     assert d.min() >= pss.S1 * (1 - 1e-3) and d.max() <= pss.S2 * (1 + 1e-3)
     u = np.log(d / pss.S1) / np.log(pss.S2 / pss.S1)
     assert stats.kstest(np.clip(u, 0, 1), "uniform").pvalue > 1e-3
+
+
+def test_film_steps_keep_the_target():
+    """Detailed balance of the film position's wider small steps (pss.film_steps of a
+    64-pixel film; with one coordinate per row every coordinate takes them)."""
+    x0 = _start_in_target(20000, np.random.default_rng(1))
+    assert _chi2_p(_run_chains(x0, 200, 0.0, film=pss.film_steps(64))) > 1e-3
+
+
+def test_film_steps_move_only_the_film_position():
+    """A row's first two coordinates step from FILM_S1_PIXELS pixels to FILM_S2 of the
+    side (log-uniform), the others by Kelemen's sizes."""
+    rows, dims, res = 50000, 4, 64
+    x = mi.Float(np.random.default_rng(5).random(rows * dims))
+    y = pss.propose(x, dims, dr.zeros(mi.Bool, rows), dr.opaque(mi.UInt32, 78),
+                    pss.film_steps(res))
+    d = np.abs(y.numpy() - x.numpy()).reshape(rows, dims)
+    d = np.minimum(d, 1.0 - d)
+    for cols, s1, s2 in (((0, 1), pss.FILM_S1_PIXELS / res, pss.FILM_S2),
+                         ((2, 3), pss.S1, pss.S2)):
+        dc = d[:, cols].ravel()
+        assert dc.min() >= s1 * (1 - 1e-3) and dc.max() <= s2 * (1 + 1e-3)
+        u = np.log(dc / s1) / np.log(s2 / s1)
+        assert stats.kstest(np.clip(u, 0, 1), "uniform").pvalue > 1e-3
 
 
 def test_sampler_reads_its_vector_then_hashes():
