@@ -7,6 +7,7 @@ import os
 
 import mitsuba as mi
 
+from . import support
 from .render import Renderer, RenderResult
 
 
@@ -40,7 +41,7 @@ def render(scene, spp: int | None = None, seed: int = 0, sensor=0,
                                  strategy_images=strategy_images, scene_params=scene_params,
                                  **settings)
     if isinstance(scene, (str, os.PathLike)):
-        scene = mi.load_file(str(scene), **(scene_params or {}))
+        scene = support.load_file(scene, **(scene_params or {}))
     elif scene_params:
         raise ValueError("bdpt: scene_params apply to a scene file, not to a loaded mi.Scene")
     if integrator != "bdpt":

@@ -184,7 +184,8 @@ def _load(job: Job):
     if not path.is_file():
         raise FileNotFoundError("the scene file %s is not in the folder shipped to it (%s)"
                                 % (job.scene, Path.cwd()))
-    scene = mi.load_file(str(path), **job.params)
+    from .support import load_file
+    scene = load_file(path, **job.params)
     renderer = Renderer(scene, sensor=job.sensor, spp=job.spp, seed=job.seed,
                         strategy_images=job.strategy_images, unit_costs=job.unit_costs,
                         **job.settings)
@@ -730,7 +731,8 @@ def render_on_cluster(scene, cluster, spp: int | None = None, seed: int = 0, sen
     address = parse_address(cluster)
     import_ray()
     params = dict(scene_params or {})
-    loaded = mi.load_file(str(scene), **params)
+    from .support import load_file
+    loaded = load_file(scene, **params)
 
     def make(workers):
         r = Renderer(loaded, sensor=sensor, spp=spp, seed=seed,

@@ -179,6 +179,17 @@ def all_shapes(scene: mi.Scene) -> list:
     return shapes
 
 
+def load_file(path, **params) -> mi.Scene:
+    """A scene file as the API, the command line and a cluster's workers load it:
+    without Mitsuba's merging of shapes that share a BSDF (``optimize=False``).  In
+    Mitsuba 3.9 the merge orders the scene's shapes, and so ``scene.emitters()``,
+    differently from process to process; an emitter is drawn by its place in that list
+    (``scene.sample_emitter``), so one seed rendered different images in different
+    processes (Veach's bidirectional room, two area lights: 4 of 16 processes drew
+    them in the other order, Mitsuba's own ``path`` included)."""
+    return mi.load_file(str(path), optimize=False, **params)
+
+
 def scene_bbox(scene: mi.Scene) -> mi.ScalarBoundingBox3f:
     """The scene's bounding box, its merged meshes included: Mitsuba (3.9) merges shapes
     that share a BSDF into one mesh whose bbox() is invalid, and scene.bbox() then

@@ -64,8 +64,9 @@ def scene_params(args) -> dict:
 
 
 def load_scene(mi, path: Path, params: dict):
+    from ..support import load_file         # after the variant is set (variant())
     try:
-        return mi.load_file(str(path), **params)
+        return load_file(path, **params)
     except Exception as e:  # Mitsuba raises RuntimeError for every parse problem
         unused = re.findall(r"\$(\w+)=", str(e)) if "unused parameters" in str(e) else []
         if unused:
