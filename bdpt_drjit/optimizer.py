@@ -38,14 +38,16 @@ the means are the whole image's so far.  After path tracing there is nothing to
 re-decide from: its samples give no light subpath's density.
 
 Merging (``vcm``: settings.merging with auto budgets).  Every candidate comes with
-merging off and, where it has light subpaths, on (``merging_candidates``).  The BDPT
+merging off and, where it has light subpaths, on at each radius of MERGE_RADII (the
+pilot's radius and a quarter of it; ``merging_candidates``).  The BDPT
 pilot pass then merges too (the balance heuristic), for its moments only: its image
 is BDPT's (mis.Weights' shadow), and where merging is chosen render.py turns its
 samples into the estimator with merging (each contribution x (1 - u_vm), the merges
 added); the first pilot pass is bdpt's (Pilot.budget).  The BDPT pass merges at its own rate eta_P = pi r^2 N_L, and each contribution
 also reports merging's share u_vm of its balance sum (mis.py's d_vm), so
 P_c / P = u_pt + r_c u_lt + kappa_c u_con + v_c u_vm with v_c = eta_c / eta_P, eta_c
-the candidate's rate in the passes to come (their radii and sizes: Costs.merge_eta).
+the candidate's rate in the passes to come (their radii, times its radius_scale, and
+sizes: Costs.merge_eta).
 A merge query is one sample: the photons' squares are independent samples as above,
 and the rest of the query's square (the pairs, F_agg^2 - sum F_i^2) is the part that
 more photons do not average away, the camera path's own variance: it scales as
@@ -56,7 +58,7 @@ its balance sum (MERGE_ONLY), else from the other samples as BDPT's pilot would.
 path no technique but merging reaches (a point light's caustic seen in a mirror) gives
 those candidates no moment but a bias (missed_bias): their error after the render's N
 samples per pixel is cost x (M + N B), not an infinite moment.  Merging's work is
-counted: the grid's build per stored vertex and the query steps (8 cell loads per
+counted: the grid's build per stored vertex and the query steps (QUERY_STEPS per
 query and the items visited, which grow with eta).  Where the decision leaves merging off, no later
 pass builds a grid or queries it (render.py), and the decision is global: no per-pixel
 merge mask.
