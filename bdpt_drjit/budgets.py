@@ -33,6 +33,8 @@ class Budget:
     light_first_hits: bool = False   # smooth first camera vertices: light image only
     merging: bool | None = None      # vertex merging: None as the settings say (a fixed
                                      # budget); True / False: the optimizer's choice
+    radius_scale: float = 1.0        # merging: the radius, times each pass's r_i
+                                     # (merge.pass_radius; the optimizer's choice)
 
     def light_subpaths(self, camera_samples: int) -> int:
         """N_L for a pass of ``camera_samples`` lanes."""
@@ -63,6 +65,8 @@ class Budget:
         ratio = ("%g" % self.light_ratio) if not math.isnan(self.light_ratio) else "?"
         first = " first_hits=light_image" if self.light_first_hits else ""
         merging = "" if self.merging is None else " merging=%s" % ("on" if self.merging else "off")
+        if self.merging and self.radius_scale != 1.0:
+            merging += " radius=%gr" % self.radius_scale
         return "light_paths=%s connections=%s%s%s" % (ratio, self.connections, first, merging)
 
     @property

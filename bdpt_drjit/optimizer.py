@@ -35,14 +35,16 @@ the means are the whole image's so far.  After path tracing there is nothing to
 re-decide from: its samples give no light subpath's density.
 
 Merging (``vcm``: settings.merging with auto budgets).  Every candidate comes with
-merging off and, where it has light subpaths, on (``merging_candidates``).  The BDPT
+merging off and, where it has light subpaths, on at each radius of MERGE_RADII (the
+pilot's radius and a quarter of it; ``merging_candidates``).  The BDPT
 pilot pass then merges too (the balance heuristic), for its moments only: its image
 is BDPT's (mis.Weights' shadow), and where merging is chosen render.py turns its
 samples into the estimator with merging (each contribution x (1 - u_vm), the merges
 added).  The pilot pass merges at its own rate eta_P = pi r^2 N_L, and each contribution
 also reports merging's share u_vm of its balance sum (mis.py's d_vm), so
 P_c / P = u_pt + r_c u_lt + kappa_c u_con + v_c u_vm with v_c = eta_c / eta_P, eta_c
-the candidate's rate in the passes to come (their radii and sizes: Costs.merge_eta).
+the candidate's rate in the passes to come (their radii, times its radius_scale, and
+sizes: Costs.merge_eta).
 A merge query is one sample: the photons' squares are independent samples as above,
 and the rest of the query's square (the pairs, F_agg^2 - sum F_i^2) is the part that
 more photons do not average away, the camera path's own variance: it scales as
@@ -53,7 +55,7 @@ its balance sum (MERGE_ONLY), else from the other samples as BDPT's pilot would.
 path no technique but merging reaches (a point light's caustic seen in a mirror) gives
 those candidates no moment but a bias (missed_bias): their error after the render's N
 samples per pixel is cost x (M + N B), not an infinite moment.  Merging's work is
-counted: the grid's build per stored vertex and the query steps (8 cell loads per
+counted: the grid's build per stored vertex and the query steps (QUERY_STEPS per
 query and the items visited, which grow with eta).  Where the decision leaves merging off, no later
 pass builds a grid or queries it (render.py), and the decision is global: no per-pixel
 merge mask.
@@ -124,12 +126,22 @@ def candidates(spectral: bool, light_image: bool = True, merging: bool = False) 
 def merging_candidates(budgets: list[Budget]) -> list[Budget]:
     """Where merging may be on (``vcm``): each budget without merging, and each one
     with light subpaths (not light_first_hits, which leaves smooth first hits to the
-    light image) with merging added: merging is one more rate of the MIS (mis.py), a
-    candidate like the others, priced by its counted work (``Costs.of``)."""
+    light image) with merging added at each radius of MERGE_RADII: merging is one more
+    rate of the MIS (mis.py), a candidate like the others, priced by its counted work
+    (``Costs.of``)."""
     off = [replace(b, merging=False) for b in budgets]
-    on = [replace(b, merging=True) for b in budgets
-          if b.light_ratio > 0 and not b.light_first_hits]
+    on = [replace(b, merging=True, radius_scale=scale) for scale in MERGE_RADII
+          for b in budgets if b.light_ratio > 0 and not b.light_first_hits]
     return off + on
+
+
+# The merging radii a candidate may take, as fractions of the radius the pilot merges
+# at (merge.first_radius's r_i).  The pilot needs the large one to see the paths only
+# merging samples well (at 0.5 or 0.25 of it the SDS scene's pilot left merging off),
+# but a render merges better at a smaller one where photons are dense: the eta of a
+# candidate at scale s is s^2 times the pilot's, its rate v (P_c / P) and the items
+# its queries visit fall with it (Costs.merging).
+MERGE_RADII = (1.0, 0.25)
 
 
 @dataclass
@@ -262,16 +274,21 @@ class MomentSamples:
             # reduction per candidate took 200 launches: the decision took 14 ms at
             # 256x256, now 8).
             out = dr.zeros(f64, len(rates))
-            for c, first_hits in enumerate(rates[:, 2].tolist()):
+            without = _without_merges(relative, u_vm, query, _missed(query, u_pt, u_lt, u_vm))
+            for c, (first_hits, merges) in enumerate(zip(rates[:, 2].tolist(),
+                                                         (merge > 0).tolist())):
                 r, k, v = (dr.gather(f64, a, first + c) for a in (rate, kappa, vm))
-                share = u_pt + r * u_lt + k * u_con + v * u_vm
+                share = u_pt + r * u_lt + k * u_con + (v * u_vm if merges else 0.0)
                 if first_hits:
                     share = dr.select(u_lt > 0, r * u_lt, share)
                 # A share of 0: the candidate cannot sample this path (infinite moment).
                 share = dr.maximum(share, 1e-9)
-                moment = (relative / share if not merging   # (BDPT's kernel, as before)
-                          else _with_merges(relative, pairs, u_vm, query, v, share,
-                                            _missed(query, u_pt, u_lt, u_vm)))
+                if not merging:                                 # (BDPT's kernel, as before)
+                    moment = relative / share
+                elif merges:
+                    moment = relative / share + pairs * dr.square(v / share)
+                else:
+                    moment = without[0] / dr.maximum(without[1] * share, 1e-9)
                 dr.scatter_reduce(dr.ReduceOp.Add, out, moment, c)
             sums += out.numpy()
         return sums
@@ -283,22 +300,20 @@ class MomentSamples:
         return gather(self.items, dr.compress(live))
 
 
-def _with_merges(relative, pairs, u_vm, query, v, share, missed):
-    """A sample's relative moment for a candidate of merging rate ``v`` (its balance
-    sum over the pass's: ``share``) in a pass that merges (MomentSamples.add): its
-    single part over the share and a merge query's pairs scaled by (v / share)^2.
-    Without merging (v = 0), a path's moment from one kind of sample: merge queries
-    where u_vm >= MERGE_ONLY, over u_vm (a mirror caustic, which BDPT's pilot cannot
-    see), else the other samples as BDPT's pilot has them (value / (1 - u_vm), shares
-    over 1 - u_vm).  With every merge sample in (the balance heuristic), sparse
-    photons' fireflies made vcm choose worse budgets than bdpt in Veach's room.  A
-    ``missed`` path (``missed_bias``) is no sample of the candidates without merging:
-    its error there is a bias, counted apart."""
-    moment = relative / share + pairs * dr.square(v / share)
+def _without_merges(relative, u_vm, query, missed):
+    """In a pass that merges (MomentSamples.add), what a candidate without merging reads
+    of a sample, (relative F^2, the share of the balance sum it stands for): a path's
+    moment from one kind of sample, merge queries where u_vm >= MERGE_ONLY, over u_vm
+    (a mirror caustic, which BDPT's pilot cannot see), else the other samples as
+    BDPT's pilot has them (value / (1 - u_vm), shares over 1 - u_vm); its moment is
+    relative / (share x the candidate's own share).  With every merge sample in (the
+    balance heuristic), sparse photons' fireflies made vcm choose worse budgets than
+    bdpt in Veach's room.  A ``missed`` path (``missed_bias``) is no sample of these
+    candidates: its error there is a bias, counted apart.  (A candidate with merging,
+    of rate v: its single part over its share and a merge query's pairs scaled by
+    (v / share)^2.)"""
     mine = dr.select(query > 0, u_vm >= MERGE_ONLY, u_vm < MERGE_ONLY) & ~missed
-    kind = dr.select(query > 0, u_vm, 1.0 - u_vm)
-    bdpt = dr.select(mine, relative / dr.maximum(kind * share, 1e-9), 0.0)
-    return dr.select(v > 0, moment, bdpt)
+    return dr.select(mine, relative, 0.0), dr.select(query > 0, u_vm, 1.0 - u_vm)
 
 
 # A candidate without merging takes a path's moment from merge samples where merging
@@ -452,6 +467,11 @@ def _self_counts(n: int, radius: int = BLUR) -> np.ndarray:
     return 1 + radius * ((i == 0).astype(int) + (i == n - 1))
 
 
+# A merge query's own work (merge.visit: the 8 cells' counts read before its loop), in
+# loop iterations (merge_step): about one iteration's gathers.
+QUERY_STEPS = 1.0
+
+
 @dataclass
 class Costs:
     """A camera sample's work, counted in the pilot, and the machine's price of each
@@ -484,16 +504,18 @@ class Costs:
             cost += full if b.connections == "all" else full * min(
                 1.0, b.connections / max(self.stored_per_path, 1e-3))
         if b.merging:
-            cost += self.merging(b.light_ratio)
+            cost += self.merging(b.light_ratio, b.radius_scale)
         return cost
 
-    def merging(self, light_ratio: float) -> float:
+    def merging(self, light_ratio: float, radius_scale: float = 1.0) -> float:
         """Merging's cost per camera sample: the grid's build per stored vertex, and
-        the queries' steps (a query loads 8 cells, each an iteration, and visits the
-        items of their buckets, as many as the photons within reach: their count per
-        query grows with eta, the light subpaths times the disc)."""
+        the queries' steps (QUERY_STEPS a query, reading its 8 cells' counts, and an
+        iteration per item of their buckets, as many as the photons within reach: their
+        count per query grows with eta, the light subpaths times the disc,
+        radius_scale^2)."""
         u = self.units
-        steps = 8.0 * self.merges + self.merge_items * light_ratio * self.merge_eta
+        eta = light_ratio * self.merge_eta * radius_scale ** 2
+        steps = QUERY_STEPS * self.merges + self.merge_items * eta
         return light_ratio * self.stored_per_path * u.grid_vertex + steps * u.merge_step
 
     def describe(self) -> str:
@@ -660,7 +682,8 @@ class Pilot:
 
     def _merge_rate(self, c: Budget, eta: float) -> float:
         """Candidate c's merging rate over the moment pass's: its eta in the passes to
-        come (Costs.merge_eta per light subpath per camera sample) over ``eta``."""
+        come (Costs.merge_eta per light subpath per camera sample, at c's radius) over
+        ``eta``."""
         if not c.merging or eta <= 0:
             return 0.0
-        return c.light_ratio * self.costs.merge_eta / eta
+        return c.light_ratio * self.costs.merge_eta * c.radius_scale ** 2 / eta

@@ -38,7 +38,7 @@ from .settings import Settings
 from . import units
 from .units import UnitCosts
 from .budgets import BDPT, PATH_TRACING, Budget, fixed_budget
-from .optimizer import MIN_SPP, MomentSample, MomentSamples, Pilot, luminance
+from .optimizer import MIN_SPP, QUERY_STEPS, MomentSample, MomentSamples, Pilot, luminance
 from .strategies import MERGE_LAYER, StrategyImages, StrategySet
 from . import backend, merge
 from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore, gather
@@ -560,7 +560,8 @@ class Renderer:
         weights.set_rates(*rates)
         radius, eta = 0.0, 0.0
         if strategies.merging and n_light > 0:      # merging at rate pi r_i^2 N_L (mis.py)
-            radius = merge.pass_radius(self.merge_radius, self.settings.radius_alpha, index)
+            radius = (merge.pass_radius(self.merge_radius, self.settings.radius_alpha, index)
+                      * budget.radius_scale)
             eta = math.pi * radius * radius * n_light
             weights.set_merging(eta)
         rates += (eta,)
@@ -908,12 +909,13 @@ def _calibration_run(scene, half, seed: int) -> tuple:
 def _merge_units(scene, seed: int, camera1: float) -> tuple:
     """(grid_vertex, merge_step): the pilot pass again with merging (the same
     samples), its grid build per stored vertex and the camera walk's extra time per
-    query step (8 per query and one per item visited, optimizer.Costs.merging).
+    query step (optimizer.QUERY_STEPS per query and one per item visited,
+    optimizer.Costs.merging).
     Spectral variants do not merge: 0, 0."""
     if mi.is_spectral:
         return 0.0, 0.0
     r, (_, camera, grid) = _timed_pass(scene, seed, merging=True)
     c = r.pilot.costs
-    steps = 8.0 * c.merges + c.merge_items * r.pilot.pilot_eta
+    steps = QUERY_STEPS * c.merges + c.merge_items * r.pilot.pilot_eta
     return (grid / max(c.stored_per_path, 1e-9),
             max(camera - camera1, 0.0) / max(steps, 1e-9))

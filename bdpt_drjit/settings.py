@@ -80,7 +80,8 @@ PARAMS = (
     Param("radius", str, "auto", "Merging radius of the first pass, in world units; "
           "``auto`` (or 0): 1.5 pixel footprints at the distance of the scene's centre "
           "(SmallVCM's default, 0.003 x the scene's radius, is about 1 of them in the "
-          "Cornell box at 512x512)."),
+          "Cornell box at 512x512).  With ``auto`` budgets the decision may merge at a "
+          "quarter of it (optimizer.MERGE_RADII)."),
     Param("radius_alpha", float, 0.75, "Radius reduction of progressive merging: pass i "
           "(1-based) merges within r_1 i^((alpha - 1) / 2); 1 keeps the radius fixed "
           "(then merging is biased, not consistent)."),

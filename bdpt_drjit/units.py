@@ -40,7 +40,7 @@ class UnitCosts:
     connection: float = 1.0     # a connection's shadow ray, its evaluations and MIS
     path_ray: float = 1.0       # a ray of Mitsuba's path (its megakernel, NEE included)
     grid_vertex: float = 1.0    # merging: a stored vertex put in the pass's hash grid
-    merge_step: float = 1.0     # merging: an iteration of a query's loop (a cell or an item)
+    merge_step: float = 1.0     # merging: an iteration of a query's loop (an item)
 
     def describe(self) -> str:
         return " ".join("%s=%.3g" % (f.name, getattr(self, f.name)) for f in fields(self))

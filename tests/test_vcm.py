@@ -20,6 +20,7 @@ import pytest
 import bdpt_drjit
 from bdpt_drjit import merge
 from bdpt_drjit.settings import Settings
+from bdpt_drjit.units import UnitCosts
 from conftest import ROOT, scene_path
 from stats import regions
 
@@ -303,28 +304,59 @@ def test_vcm_decision_is_the_same_for_a_seed(monkeypatch):
 
 
 def test_merging_candidates_and_their_cost():
-    """Every budget with light subpaths (not light_first_hits) has a merging twin; a
-    merging candidate is covered only by a moment pass that merges; its cost adds the
-    grid's build per stored vertex and the query steps, 8 per query plus the items,
-    whose count grows with the candidate's eta."""
+    """Every budget with light subpaths (not light_first_hits) has a merging twin at
+    each radius of MERGE_RADII; a merging candidate is covered only by a moment pass
+    that merges; its cost adds the grid's build per stored vertex and the query steps,
+    QUERY_STEPS per query plus the items, whose count grows with the candidate's eta
+    (radius_scale^2 of it at a smaller radius)."""
     from bdpt_drjit.budgets import Budget
-    from bdpt_drjit.optimizer import Costs, candidates, covers
+    from bdpt_drjit.optimizer import MERGE_RADII, QUERY_STEPS, Costs, candidates, covers
     from bdpt_drjit.units import UnitCosts
     plain = candidates(False)
     both = candidates(False, merging=True)
-    assert len(both) == len(plain) + sum(b.light_ratio > 0 and not b.light_first_hits
-                                         for b in plain)
+    twins = sum(b.light_ratio > 0 and not b.light_first_hits for b in plain)
+    assert len(both) == len(plain) + twins * len(MERGE_RADII) and len(MERGE_RADII) > 1
+    assert sorted({b.radius_scale for b in both if b.merging}) == sorted(MERGE_RADII)
     assert all(b.merging is not None for b in both)
+    assert covers(Budget(0.5, 1, merging=True), Budget(0.5, 1, merging=True, radius_scale=0.25))
     on, off = Budget(0.5, "all", merging=True), Budget(0.5, "all", merging=False)
     assert covers(on, off) and covers(on, on) and not covers(off, on)
     units = UnitCosts(camera_ray=1, light_ray=1, stored_vertex=1, connection=1, path_ray=1,
                       grid_vertex=2.0, merge_step=3.0)
     c = Costs(units, camera_rays=4, light_rays=5, stored_per_path=3, connection_rays=6,
               merges=2, merge_items=0.01, merge_eta=100.0)
-    assert c.of(on) - c.of(off) == pytest.approx(0.5 * 3 * 2.0 + (8 * 2 + 0.01 * 0.5 * 100) * 3.0)
+    assert c.of(on) - c.of(off) == pytest.approx(0.5 * 3 * 2.0 + (QUERY_STEPS * 2 + 0.01 * 0.5 * 100) * 3.0)
     light_only = Budget(0.5, 0, merging=True)      # merging stores vertices without connections
     assert c.of(light_only) - c.of(Budget(0.5, 0, merging=False)) == pytest.approx(
         0.5 * 3 * 1.0 + c.merging(0.5))
+    small = Budget(0.5, "all", merging=True, radius_scale=0.5)
+    assert c.of(small) - c.of(off) == pytest.approx(
+        0.5 * 3 * 2.0 + (QUERY_STEPS * 2 + 0.01 * 0.5 * 100 * 0.25) * 3.0)
+    assert "radius=0.5r" in str(small) and "radius" not in str(on)
+
+
+def test_a_smaller_radius_is_a_smaller_rate_and_the_passes_merge_at_it(monkeypatch):
+    """A merging candidate at radius_scale s merges at s r_i in the passes it renders,
+    and its rate over the moment pass's (the v of P_c / P) is s^2 that of scale 1."""
+    from dataclasses import replace
+    from bdpt_drjit.budgets import Budget
+    from bdpt_drjit.optimizer import Pilot
+    from bdpt_drjit.render import Renderer
+    pilot = Pilot(False, merging=True)
+    pilot.costs.merge_eta = 100.0
+    full, half = Budget(0.5, 1, merging=True), Budget(0.5, 1, merging=True, radius_scale=0.5)
+    assert pilot._merge_rate(full, 10.0) == pytest.approx(5.0)
+    assert pilot._merge_rate(half, 10.0) == pytest.approx(1.25)
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=16, resy=16)
+    r = Renderer(scene, spp=4, seed=1, max_depth=4, merging=True, light_paths=1,
+                 connections=1, unit_costs=UnitCosts())
+    r.budget = replace(r.budget, merging=True, radius_scale=0.5)
+    radii = []
+    build = merge.HashGrid.build
+    monkeypatch.setattr(merge.HashGrid, "build", staticmethod(
+        lambda store, radius, *a, **k: radii.append(radius) or build(store, radius, *a, **k)))
+    r.render_pass(0)
+    assert radii == [pytest.approx(0.5 * merge.pass_radius(r.merge_radius, 0.75, 0))]
 
 
 def test_merge_pairs_scale_with_the_merging_rate_squared():
