@@ -4,6 +4,9 @@ where a render's fixed cost (its pilot passes, the walks' tracing) weighs most.
     python -m benchmarks.small                 # 32 spp: Cornell box 128x128, glass pane 64x64,
                                                # Veach's bidirectional room 128x128 (../shared)
     python -m benchmarks.small --busy          # the same beside a CPU-bound job
+    python -m benchmarks.small --scenes camera-behind-glass --res 256 --spp 64
+                                               # another size: where the default
+                                               # path-traces, its time over path's
 
 Per scene, after a warm-up render of each: ``seeds`` renders of the default at SPP and
 of ``path`` at SPP, one of each in turn, each timed around the render and its image.
@@ -72,23 +75,26 @@ def main(argv=None) -> None:
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--busy", action="store_true", help="beside a CPU-bound job")
     ap.add_argument("--scenes", help="comma-separated (default: %s)" % ",".join(n for n, _ in CASES))
+    ap.add_argument("--res", type=int, help="the film's width for every scene (default: "
+                    "each scene's size above)")
     a = ap.parse_args(argv)
-    cases = [(n, r) for n, r in CASES if not a.scenes or n in a.scenes.split(",")]
+    cases = [(n, a.res or r) for n, r in CASES if not a.scenes or n in a.scenes.split(",")]
     busy = [multiprocessing.Process(target=_busy, daemon=True)
             for _ in range(multiprocessing.cpu_count())] if a.busy else []
     for p in busy:
         p.start()
     try:
         print("| scene | size | spp | default: time, relMSE | path: time, relMSE | "
-              "relMSE x time / path's |\n|---|---|---|---|---|---|")
+              "relMSE x time / path's | time / path's |\n|---|---|---|---|---|---|---|")
         for name, res in cases:
             if SCENES[name].external and not SCENES[name].file.exists():
-                print("| %s | skipped: %s not found (../shared) | | | | |" % (name, SCENES[name].file))
+                print("| %s | skipped: %s not found (../shared) | | | | | |" % (name, SCENES[name].file))
                 continue
             r = measure(name, res, a.spp, a.seeds)
             (tb, eb, _), (tp, ep, _) = r["stats"]["bdpt-auto"], r["stats"]["path"]
-            print("| %s | %s | %d | %.1f ms, %.4g | %.1f ms, %.4g | **%.2f** |"
-                  % (name, r["size"], r["spp"], 1e3 * tb, eb, 1e3 * tp, ep, r["ratio"]), flush=True)
+            print("| %s | %s | %d | %.1f ms, %.4g | %.1f ms, %.4g | **%.2f** | %.2f |"
+                  % (name, r["size"], r["spp"], 1e3 * tb, eb, 1e3 * tp, ep, r["ratio"], tb / tp),
+                  flush=True)
     finally:
         for p in busy:
             p.terminate()
