@@ -140,7 +140,7 @@ class Timing:
 
 def _history_timing(wall: float, taken=()) -> Timing:
     """Timing from Dr.Jit's kernel history, plus entries a renderer ``taken`` from it
-    (bdpt's pilot passes time their kernels with it)."""
+    (the calibration's timed passes take their kernels from it)."""
     hist = list(taken) + dr.kernel_history()
     t = Timing(wall=wall)
     for e in hist:

@@ -1,5 +1,5 @@
 """Small renders: the default budget's error at equal time against Mitsuba's ``path``
-where a render's fixed cost (its pilot passes, the walks' tracing) weighs most.
+where a render's fixed cost (its pilot pass, the walks' tracing) weighs most.
 
     python -m benchmarks.small                 # 32 spp: Cornell box 128x128, glass pane 64x64,
                                                # Veach's bidirectional room 128x128 (../shared)
