@@ -19,7 +19,7 @@ fi
 export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb} PYTHONUNBUFFERED=1
 PY=${PY:-python3}
 RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}
-STEPS=${STEPS:-calibrate tests passes breakdown efficiency profile throughput memory small}
+STEPS=${STEPS:-calibrate tests passes breakdown divergence efficiency profile throughput memory small}
 EXT=${BDPT_SHARED:-../shared}/scenes/external
 mkdir -p "$OUT"
 step() {   # step NAME SECONDS COMMAND...: run with a time limit, log, report
@@ -53,12 +53,20 @@ breakdown() {   # the camera walk without connections, and with neither light wa
         $PY -m benchmarks.profile_pass --res "$RES" --spp 1 --budget "$b"
     done
 }
-export -f profile throughput passes breakdown; export PY RES EXT
+divergence() {   # the connection loop's wasted iterations per warp, and their time bound
+    $PY benchmarks/experiments/connection_divergence.py cornell-diffuse --res 256
+    $PY benchmarks/experiments/connection_divergence.py scenes/deep-box.xml --max-depth 65 --res 256
+    $PY benchmarks/experiments/connection_divergence.py cornell-diffuse --bound 2 --spp 4 --res "$RES"
+    $PY benchmarks/experiments/connection_divergence.py scenes/deep-box.xml --max-depth 65 \
+        --bound 2 --spp 4 --res "$RES"
+}
+export -f profile throughput passes breakdown divergence; export PY RES EXT
 step calibrate 90 $PY -m bdpt_drjit calibrate --variant "$BDPT_VARIANT"
 step profile 40 profile
 step throughput 100 throughput
 step passes 150 passes
 step breakdown 40 breakdown
+step divergence 90 divergence
 step tests 160 $PY -m pytest -q -p no:cacheprovider -n "${JOBS:-8}" --ignore tests/test_cluster.py \
     -k \'not spectral_and_mono and not variant_switch and not specfilm\'
 step efficiency 110 $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3

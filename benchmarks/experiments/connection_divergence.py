@@ -7,8 +7,8 @@ reports the iterations packets of W = 8, 16 (the CPU's AVX2 and AVX-512 packets)
 32 (a CUDA warp) run over the useful ones.
 
 ``--bound N`` times what removing that divergence could give at most: N renders each,
-interleaved, of Veach's BDPT as it is and of one whose 16 lanes of a packet all connect
-to the same light subpath (the first lane's: no divergence from list lengths, and one
+interleaved, of Veach's BDPT as it is and of one whose 16 lanes of a packet (32 of a
+warp under CUDA) all connect to the same light subpath (the first lane's: no divergence from list lengths, and one
 record read per packet).  That image is biased; only its time is read.
 
     python benchmarks/experiments/connection_divergence.py cornell-diffuse veach-bidir
@@ -17,9 +17,11 @@ record read per packet).  That image is biased; only its time is read.
 
 Scene names are the suite's (benchmarks/scenes.py; external ones need BDPT_SHARED), or
 an XML file.  The counts come from a copy of the connection loop's condition, traced
-beside it (the loop itself is untouched); the pass is the engine's, 1 spp.
+beside it (the loop itself is untouched); the pass is the engine's, 1 spp, on
+``BDPT_VARIANT`` (default ``llvm_ad_rgb``).
 """
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -91,8 +93,10 @@ def bound(scene, max_depth: int, spp: int, repeats: int) -> tuple:
     import mitsuba as mi
     render = importlib.import_module("bdpt_drjit.render")   # (the package exports a function of that name)
 
+    group = 32 if mi.variant().startswith("cuda") else 16
+
     def shared(ctx, lane):
-        return (lane & ~mi.UInt32(15)) % dr.opaque(mi.UInt32, max(ctx.light_count, 1))
+        return (lane & ~mi.UInt32(group - 1)) % dr.opaque(mi.UInt32, max(ctx.light_count, 1))
 
     def seconds(seed: int) -> float:
         start = time.perf_counter()
@@ -129,7 +133,7 @@ def main() -> None:
     args = parser.parse_args()
     sys.path.insert(0, str(Path(__file__).resolve().parents[2]))      # this checkout
     import mitsuba as mi
-    mi.set_variant("llvm_ad_rgb")
+    mi.set_variant(os.environ.get("BDPT_VARIANT", "llvm_ad_rgb"))
     from benchmarks.scenes import SCENES
     from bdpt_drjit import support
     if not args.bound:
