@@ -32,7 +32,7 @@ from . import common as C
 import drjit as dr  # noqa: E402  (after common, which selects the variant)
 import mitsuba as mi  # noqa: E402
 
-from bdpt_drjit import Renderer  # noqa: E402
+from bdpt_drjit import Renderer, support  # noqa: E402
 from bdpt_drjit.cluster import Cluster, ClusterRun  # noqa: E402
 
 dr.set_flag(dr.JitFlag.KernelHistory, False)       # common turns it on; not needed here
@@ -44,7 +44,7 @@ class Plain:
     other load changes over a run, and each mode keeps its fastest render."""
 
     def __init__(self, args, params):
-        self.scene = mi.load_file(str(SCENE), **params)
+        self.scene = support.load_file(SCENE, **params)
         self.args = args
         self.make().render_pass(0)                  # warm-up: kernels compiled
         self.best = None
@@ -74,7 +74,7 @@ class Plain:
 
 
 def on_cluster(args, params, workers: int, plain: Plain) -> dict:
-    scene = mi.load_file(str(SCENE), **params)
+    scene = support.load_file(SCENE, **params)
     r = Renderer(scene, spp=args.spp, seed=args.seed, samples_per_pass=args.per_pass,
                  max_depth=args.max_depth)
     address = "local:%d" % workers

@@ -34,9 +34,9 @@ _seeds = itertools.count(1_000_003, 7919)      # never reused within a run
 
 
 def load(name: str, res: int):
-    import mitsuba as mi
+    from bdpt_drjit import support
     file, depth = SCENES[name]
-    return mi.load_file(str(C.ROOT / "scenes" / file), resx=res, resy=res, max_depth=depth), depth
+    return support.load_file(C.ROOT / "scenes" / file, resx=res, resy=res, max_depth=depth), depth
 
 
 def equal_spp(name: str, res: int, spp: int, repeats: int) -> dict:

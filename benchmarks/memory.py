@@ -49,8 +49,9 @@ def main(argv=None) -> None:
     ap.add_argument("--budget", default="light_paths=1 connections=all",
                     help="a fixed budget (default: Veach's BDPT), or auto")
     a = ap.parse_args(argv)
+    from bdpt_drjit import support
     from bdpt_drjit.render import Renderer
-    scene = mi.load_file(str(a.scene), resx=a.res, resy=a.res, max_depth=a.max_depth)
+    scene = support.load_file(a.scene, resx=a.res, resy=a.res, max_depth=a.max_depth)
     budget = {} if a.budget == "auto" else dict(kv.split("=") for kv in a.budget.split())
     r = Renderer(scene, spp=a.spp, seed=1, max_depth=a.max_depth,
                  memory_budget=a.mib << 20, **budget)

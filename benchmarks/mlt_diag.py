@@ -14,7 +14,7 @@ import mitsuba as mi
 import numpy as np
 
 import bdpt_drjit  # noqa: F401
-from bdpt_drjit import mlt
+from bdpt_drjit import mlt, support
 from bdpt_drjit.render import Renderer
 
 
@@ -36,7 +36,7 @@ def main():
     path = sys.argv[1] if len(sys.argv) > 1 else "scenes/door-ajar.xml"
     seconds = float(sys.argv[2]) if len(sys.argv) > 2 else 8.0
     chains = int(sys.argv[3]) if len(sys.argv) > 3 else 16384
-    scene = mi.load_file(path, resx=64, resy=64)
+    scene = support.load_file(path, resx=64, resy=64)
     for seed in (1, 2):
         totals, times = {}, []
         r = mlt.MLTRenderer(scene, seed=seed, max_depth=8, mutations_per_pixel=1 << 16,

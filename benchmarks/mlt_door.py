@@ -25,7 +25,7 @@ import numpy as np
 
 import bdpt_drjit  # noqa: F401
 import mitsuba as mi
-from bdpt_drjit import mlt, mmlt
+from bdpt_drjit import mlt, mmlt, support
 from bdpt_drjit.render import Renderer
 
 
@@ -102,7 +102,7 @@ def main(argv=None):
                          "chains=16384,bootstrap_samples=524288")
     args = ap.parse_args(argv)
     door = Path(args.scene).name == "door-ajar.xml"
-    scene = mi.load_file(args.scene, resx=args.res, resy=args.res,
+    scene = support.load_file(args.scene, resx=args.res, resy=args.res,
                          **({"gap_start": args.gap_start} if door else {}))
     t0 = time.perf_counter()
     ref, eps, ref_err = reference(scene, args.scene, args.res, args.ref_spp, args.gap_start)

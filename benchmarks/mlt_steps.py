@@ -25,7 +25,7 @@ import mitsuba as mi
 import numpy as np
 
 import bdpt_drjit  # noqa: F401
-from bdpt_drjit import mlt, mmlt, pss
+from bdpt_drjit import mlt, mmlt, pss, support
 from benchmarks.mlt_door import _lum, reference
 
 
@@ -90,7 +90,7 @@ def main(argv=None):
     args.film = args.film or ["0.0625,0.015625", "%g,%g" % (pss.FILM_S1_PIXELS, pss.FILM_S2)]
     door = Path(args.scene).name == "door-ajar.xml"
     gap = args.gap_start if door else 0.45
-    scene = mi.load_file(args.scene, resx=64, resy=64, **({"gap_start": gap} if door else {}))
+    scene = support.load_file(args.scene, resx=64, resy=64, **({"gap_start": gap} if door else {}))
     ref, eps, _ = reference(scene, args.scene, 64, 16384, gap)
     if args.mode == "trace":
         trace(scene, ref, eps, args.seconds, args.seeds)

@@ -14,6 +14,8 @@ import time
 import drjit as dr
 import mitsuba as mi
 
+from bdpt_drjit import support
+
 from . import common as C
 
 
@@ -70,7 +72,7 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--repeats", type=int, default=3)
     a = ap.parse_args()
-    scene = mi.load_file(str(C.ROOT / "scenes" / "cornell-box.xml"), resx=a.res, resy=a.res)
+    scene = support.load_file(C.ROOT / "scenes" / "cornell-box.xml", resx=a.res, resy=a.res)
     timed_render(scene, a.spp, 1)                       # warm-up: kernels
     for i in range(a.repeats):
         r = timed_render(scene, a.spp, 1000 + i)

@@ -153,7 +153,7 @@ def blocks(image: np.ndarray) -> np.ndarray:
 def check(d: dict, max_depth: int, options: dict) -> tuple:
     """(worst block z, bdpt's mean, volpath's, alpha means or None, all finite)."""
     import bdpt_drjit
-    scene = mi.load_dict(d)
+    scene = mi.load_dict(d, optimize=False)      # as support.load_file
     hide = options.get("hide_emitters", False)
     ref = [np.array(mi.render(scene, spp=512, seed=100 + i, integrator=mi.load_dict(
         {"type": "volpath", "max_depth": max_depth, "hide_emitters": hide}))) for i in range(4)]

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import mitsuba as mi
 
+from bdpt_drjit import support
+
 from .common import BENCH, EXTERNAL, ROOT, read_exr
 
 
@@ -63,7 +65,7 @@ class BenchScene:
         params = dict(resx=width, resy=height,
                       max_depth=self.max_depth if max_depth is None else max_depth)
         if not self.external:
-            return mi.load_file(str(self.file), **params)
+            return support.load_file(self.file, **params)
         # External scenes use a tent pixel filter.  The reference is box-downsampled
         # from a high-resolution render, which equals a box filter at the low
         # resolution, so swap the filter for a box one (in memory, on the fly).
@@ -73,7 +75,7 @@ class BenchScene:
         saved = [fr[i] for i in range(len(fr))]
         fr.prepend(str(self.file.parent))
         try:
-            return mi.load_string(text, **params)
+            return mi.load_string(text, optimize=False, **params)   # as support.load_file
         finally:
             fr.clear()
             for p in saved:

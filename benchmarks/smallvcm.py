@@ -144,7 +144,7 @@ def build_scene(name: str, res: int = RES, tmp: Path | None = None):
     else:
         d["light"] = {"type": "point", "position": [0.0, -0.5, 1.0],
                       "intensity": {"type": "rgb", "value": [70.0 / (4 * math.pi)] * 3}}
-    return mi.load_dict(d)
+    return mi.load_dict(d, optimize=False)      # as support.load_file
 
 
 def read_hdr(path) -> np.ndarray:

@@ -46,8 +46,8 @@ def current_rss_mib() -> float:
 
 
 def load_scene(path, width, height, max_depth):
-    import mitsuba as mi
-    return mi.load_file(str(path), resx=width, resy=height, max_depth=max_depth)
+    from bdpt_drjit import support
+    return support.load_file(path, resx=width, resy=height, max_depth=max_depth)
 
 
 def measure(method: C.Method, scene, spp: int, repeats: int, max_depth: int,

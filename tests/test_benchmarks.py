@@ -164,3 +164,22 @@ def test_smallvcm_benchmark_skips_without_its_binary(tmp_path):
     r = subprocess.run([sys.executable, "-m", "benchmarks.smallvcm", str(tmp_path / "none")],
                        cwd=str(ROOT), capture_output=True, text=True, timeout=300, env=cli_env())
     assert r.returncode == 0 and "not found" in r.stdout
+
+
+def test_benchmarks_load_scenes_without_mitsubas_merging(monkeypatch):
+    """The benchmarks load their scenes as the API does (support.load_file): Mitsuba's
+    merging of shapes that share a BSDF orders ``scene.emitters()`` differently from
+    process to process, so an A/B run whose worker processes loaded Veach's room in
+    different orders compared different images for the same seeds (RESULTS.md's
+    per-process effect: 2 of 8 fresh processes drew its two lights in the other
+    order)."""
+    import mitsuba as mi
+    from benchmarks import deep, throughput
+    from benchmarks.scenes import SCENES
+    loaded = []
+    load = mi.load_file
+    monkeypatch.setattr(mi, "load_file", lambda *a, **k: loaded.append(k) or load(*a, **k))
+    SCENES["cornell-diffuse"].load(8, 8)
+    throughput.load_scene(ROOT / "scenes" / "cornell-box.xml", 8, 8, 4)
+    deep.load("deep-box", 8)
+    assert [k.get("optimize") for k in loaded] == [False, False, False]

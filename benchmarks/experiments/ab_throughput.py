@@ -38,7 +38,7 @@ def main():
     scene_file, res, spp, md = sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
     repeats = int(sys.argv[6]) if len(sys.argv) > 6 else 3
     dr.set_flag(dr.JitFlag.KernelHistory, True)
-    scene = mi.load_file(scene_file, resx=res, resy=res)
+    scene = mi.load_file(scene_file, resx=res, resy=res, optimize=False)   # as support.load_file
     full = lambda s: bdpt_drjit.render(scene, spp=spp, seed=s, max_depth=md, light_paths=1,  # noqa: E731
                                        connections="all")
     auto = lambda s: bdpt_drjit.render(scene, spp=spp, seed=s, max_depth=md)  # noqa: E731
