@@ -57,8 +57,10 @@ those candidates no moment but a bias (missed_bias): their error after the rende
 samples per pixel is cost x (M + N B), not an infinite moment.  Merging's work is
 counted: the grid's build per stored vertex and the query steps (QUERY_STEPS per
 query and the items visited, which grow with eta).  Where the decision leaves merging off, no later
-pass builds a grid or queries it (render.py), and the decision is global: no per-pixel
-merge mask.
+pass builds a grid or queries it (render.py), but the re-decisions still weigh the
+merging candidates, by the pilot's moments (Pilot.redecide), so that the other
+candidates' moments, firmer with every moment pass, can turn merging on.  The
+decision is global: no per-pixel merge mask.
 
 Costs are counted, not timed: the pilot counts per camera sample the rays of the
 camera walk with s <= 1, per light subpath the rays of the light walk and its t = 1
@@ -611,6 +613,7 @@ class Pilot:
         self.pilot_eta = 0.0                      # the pilot pass's merging rate
         self.moments: dict = {}                   # candidate: (sum of estimates x
                                                   # recorded samples, recorded samples)
+        self.bias = (0.0, 0.0)                    # N B (missed_bias), the same way
 
     def budget(self, index: int):
         """(budget, heuristic, with moments) of pilot pass ``index``: full BDPT with the
@@ -644,7 +647,7 @@ class Pilot:
         its image (its luminance, (H, W), after ``spp`` camera samples per pixel of
         those in ``filled``, all by default)."""
         self.decision = self._decide(self.candidates, samples, splats, mean, spp,
-                                     (1.0, 1.0, self.pilot_eta), filled)
+                                     (1.0, 1.0, self.pilot_eta), filled=filled)
         self.first = self.decision
         return self.decision
 
@@ -655,15 +658,29 @@ class Pilot:
         kappa): among the candidates whose balance sums that pass's samples give
         (``covers``), with each candidate's moment averaged over every moment pass so
         far.  The image's means are the whole render's so far (``spp`` per pixel);
-        ``rates`` ends with the pass's merging rate eta (0 without merging)."""
+        ``rates`` ends with the pass's merging rate eta (0 without merging).
+
+        A pass without merging cannot price merging, but its samples firm up the
+        moments of the candidates without it: merging candidates then keep the moments
+        of the passes that merged (the pilot's), and the decision weighs them too
+        (SeeSharp's iterative updates; without, the pilot's choice to leave merging off
+        held).  Their pilot estimate is the reliable one: on SmallVCM's large glass
+        sphere the pilot saw the caustic through the glass in 11-22 merges and 0-3 BDPT
+        samples, so the candidates without merging were short of that moment in most
+        pilots."""
         cands = [c for c in self.candidates if covers(budget, c)]
-        self.decision = self._decide(cands, samples, splats, mean, spp, rates)
+        kept = [c for c in self.candidates if c.merging and not budget.merging
+                and c in self.moments]
+        self.decision = self._decide(cands, samples, splats, mean, spp, rates, kept)
         self.rounds.append((spp, self.decision.budget))
         return self.decision
 
-    def _decide(self, cands, samples, splats, mean, spp, rates, filled=None) -> Decision:
+    def _decide(self, cands, samples, splats, mean, spp, rates, kept=(), filled=None) -> Decision:
         """Per candidate, the relative moment summed over pixels per camera sample of
-        this pass, averaged with earlier passes' by their recorded camera samples."""
+        this pass, averaged with earlier passes' by their recorded camera samples; the
+        decision among ``cands`` and ``kept`` (moments of earlier passes alone).  The
+        bias N B of the candidates without merging (missed_bias) is no moment: it is
+        measured by the passes that merge and averaged over them alone."""
         r, k, eta = rates
         rows = np.array([[c.light_ratio / r, c.kappa(1, self.costs.stored_per_path) / k if k
                           else 0.0, float(c.light_first_hits), self._merge_rate(c, eta)]
@@ -671,14 +688,18 @@ class Pilot:
         recorded = samples.lanes / samples.every
         means = PilotMeans.of(mean, spp, filled)
         relative = samples.relative_moments(rows, means, splats, self.merging) / samples.lanes
-        if self.merging:    # what the candidates without merging miss: N B (missed_bias)
-            bias = self.spp * missed_bias(samples, means, mean.shape)
-            relative = relative + np.array([0.0 if c.merging else bias for c in cands])
+        if self.merging and eta > 0:    # what the candidates without merging miss
+            total, weight = self.bias
+            self.bias = (total + self.spp * missed_bias(samples, means, mean.shape) * recorded,
+                         weight + recorded)
+        bias = self.bias[0] / self.bias[1] if self.bias[1] else 0.0
         for c, m in zip(cands, relative):
             total, weight = self.moments.get(c, (0.0, 0.0))
             self.moments[c] = (total + m * recorded, weight + recorded)
+        cands = list(cands) + list(kept)
         return decide(cands, np.array([self.moments[c][0] / self.moments[c][1]
-                                       for c in cands]), self.costs)
+                                       + (0.0 if c.merging else bias) for c in cands]),
+                      self.costs)
 
     def _merge_rate(self, c: Budget, eta: float) -> float:
         """Candidate c's merging rate over the moment pass's: its eta in the passes to

@@ -433,9 +433,18 @@ class Renderer:
     def merge_eta(self, after: int) -> float:
         """Merging's rate per light subpath per camera sample over the passes after
         ``after``: the mean of pi r_i^2 N_C,i (merge.pass_radius), which a budget's
-        light_ratio scales to its eta (optimizer.Costs.merge_eta)."""
+        light_ratio scales to its eta (optimizer.Costs.merge_eta).  Over the passes a
+        merging budget would render (``_plan``, ``_replan``): after a choice without
+        merging the plan's passes are larger, and their eta priced merging's queries
+        at 3x the pilot's cost on SmallVCM's large glass sphere."""
+        rest = self.plan[after + 1:]
+        if (not self.budget.merges and not self.settings.samples_per_pass and rest
+                and rest[0][1] == self.pixels):
+            lanes = min(self._lanes_for(BDPT), max(merge.PASS_LANES, self.pixels))
+            rest = plan_passes(sum(spp for _, _, spp in rest), self.pixels, lanes, 0,
+                               self._accepted_count)
         etas = [math.pi * merge.pass_radius(self.merge_radius, self.settings.radius_alpha, i) ** 2
-                * n * spp for i, (_, n, spp) in enumerate(self.plan) if i > after]
+                * n * spp for i, (_, n, spp) in enumerate(rest, after + 1)]
         return float(np.mean(etas)) if etas else 0.0
 
     def _plan_rounds(self, done: int) -> None:

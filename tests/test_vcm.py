@@ -414,6 +414,53 @@ def test_a_path_only_merging_reaches_is_a_bias_not_an_infinite_moment():
     assert missed_bias(samples, means, (9, 9)) == 0.0
 
 
+def test_a_re_decision_without_merging_still_weighs_merging():
+    """A moment pass of a budget without merging cannot price merging, but it firms up
+    the other candidates' moments: where they turn out far larger than the pilot's,
+    the re-decision chooses merging, priced by the moments of the pass that merged
+    (the pilot's).  Before, it chose among the candidates without merging alone: on
+    SmallVCM's large glass sphere the pilot's few BDPT samples of the caustic seen
+    through the glass left merging off in most seeds, for good."""
+    from bdpt_drjit.optimizer import MomentSample, MomentSamples, Pilot
+    pilot = Pilot(False, merging=True, units=UnitCosts(), spp=64)
+    pilot.record(lanes=100, walk_rays=300, connection_rays=100, light_subpaths=100,
+                 light_rays=300, stored=200)
+    pilot.record_merging(100, merges=100, items=1000, eta=1.0)
+    pilot.costs.merge_eta = 1.0
+    pilot.moments = {c: (16.0, 16.0) for c in pilot.candidates}    # all alike: 1
+    budget = next(c for c in pilot.candidates
+                  if not c.merging and c.light_ratio == 0.5 and c.connections == 1)
+    n = 16                  # one path-traced sample per pixel of a 4x4 film, F^2 = 100
+    samples = MomentSamples(n)
+    samples.items = MomentSample(pixel=mi.UInt32(np.arange(n)), f2=mi.Float([100.0] * n),
+                                 u_pt=mi.Float([1.0] * n), u_lt=mi.Float([0.0] * n),
+                                 u_vm=mi.Float([0.0] * n), f2_pairs=mi.Float([0.0] * n),
+                                 query=mi.Float([0.0] * n))
+    samples.count, samples.SLOTS = mi.UInt32([1] * n), 1
+    kappa = budget.kappa(1, pilot.costs.stored_per_path)
+    decision = pilot.redecide(samples, None, np.ones((4, 4)), 1e6, budget, (0.5, kappa, 0.0))
+    assert decision.budget.merging, decision.describe()
+    assert pilot.moments[decision.budget] == (16.0, 16.0)          # the pilot's alone
+
+
+def test_merging_is_priced_by_the_passes_a_merging_budget_renders():
+    """After a choice without merging the plan's passes are larger (their radius need
+    not shrink), but merging's eta, and the grid items its queries visit, are those
+    of the small passes a merging budget would render: the same for any plan of the
+    same samples.  Before, a re-decision on SmallVCM's large glass sphere priced
+    merging's queries at 3x the pilot's cost."""
+    from bdpt_drjit.budgets import Budget
+    from bdpt_drjit.render import Renderer, plan_passes
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=16, resy=16)
+    r = Renderer(scene, spp=256, seed=1, max_depth=4, merging=True, unit_costs=UnitCosts())
+    r.budget = Budget(0.5, 1, merging=False)
+    etas = []
+    for lanes in (16 * 16 * 8, 16 * 16 * 128):
+        r.plan = r.plan[:1] + plan_passes(240, r.pixels, lanes, 0, r._accepted_count)
+        etas.append(r.merge_eta(0))
+    assert etas[0] == pytest.approx(etas[1], rel=1e-6)
+
+
 @pytest.mark.auto_budget
 def test_vcm_leaves_merging_off_where_it_adds_only_a_point_lights_faint_sds_caustic():
     """SmallVCM's point-light box (benchmarks/smallvcm.py, bs_p): merging alone reaches
