@@ -4,6 +4,9 @@ thousands of Markov chains, one per lane.
     bootstrap        B independent BDPT samples (hashed primary samples, pss.py):
                      b = mean f, the image's normalization; chains start at
                      samples drawn in proportion to f (resampling)
+    pilot            one small step of PILOT_CHAINS chains from their start states,
+                     discarded: where Kelemen's sizes are accepted less than 0.234,
+                     the small steps reach down to 1/16384 (pss.fine_steps)
     each iteration   propose y for every chain (large step with probability
                      p_large, else Kelemen small steps: pss.propose)
                      evaluate y: camera ray, light subpath, camera subpath with every
@@ -43,7 +46,7 @@ compiles nothing after the first (tests/test_mlt.py).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 
 import drjit as dr
 import mitsuba as mi
@@ -118,6 +121,9 @@ ESS_CHAINS = 2.0
 # samples (8 per chain) 4.18x the default bdpt's relMSE, 262144 3.07x, 131072 2.90x
 # (benchmarks/RESULTS.md); the door's gaps never reach it.
 ESS_STOP = 1.0
+# The chains whose start states price Kelemen's small steps (MLTRenderer._pilot_steps;
+# pss.fine_steps): a mean acceptance to about 0.01, at the cost of a few ms.
+PILOT_CHAINS = 4096
 BOOTSTRAP_LANES = 1 << 16       # lanes of a bootstrap batch (at least the chains)
 BDPT_PARAMS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
 # Separate direct samples (``direct_samples``, MLTRenderer._separate_direct): paths of up to
@@ -211,6 +217,22 @@ class Chains:
     def vectors(self) -> dict:
         """The chain's primary sample vectors by field name (chains x D each)."""
         return {"camera_u": self.camera_u, "light_u": self.light_u}
+
+    def rows(self, rows: mi.UInt32, dims: dict) -> "Chains":
+        """The chains ``rows``: their vectors (``dims`` coordinates each), f and other
+        per-chain fields, without records (a pilot's states)."""
+        out = {}
+        for field in fields(self):
+            v, d = getattr(self, field.name), dims.get(field.name)
+            if d is not None:
+                e = dr.arange(mi.UInt32, dr.width(rows) * d)
+                v = dr.gather(type(v), v, dr.gather(mi.UInt32, rows, e // d) * d + e % d)
+            elif isinstance(v, (mi.Float, mi.UInt32)):
+                v = dr.gather(type(v), v, rows)
+            else:
+                v = None
+            out[field.name] = v
+        return replace(self, **out)
 
     def accept(self, accepted: mi.Bool, y: dict, ev: Evaluation, dims: dict) -> None:
         """x <- y where ``accepted`` (per chain; masks, no per-lane branches): ``y`` the
@@ -363,6 +385,9 @@ class MLTRenderer:
         self._configure()
         start = time.perf_counter()
         self.b, self.state = self.bootstrap()
+        self.s1, self.pilot_acceptance = pss.S1, 0.0
+        if self.state is not None:
+            self.s1 = self._pilot_steps()
         self.bootstrap_time = time.perf_counter() - start
         self.time += self.bootstrap_time
 
@@ -584,15 +609,42 @@ class MLTRenderer:
             if dr.width(records.lane):
                 self.direct_film.put_light(records.pos, records.value)
 
+    def _proposals(self, key: tuple, large: mi.Bool, s1) -> dict:
+        """Every chain's proposal y, keyed by ``key`` (pss.propose per stream; the film
+        steps on the camera stream's film position, ``s1`` the other coordinates'
+        smallest step)."""
+        y = {name: pss.propose(vector, self.dims[name], large, self._key(*key, k),
+                               self.film_steps if name == "camera_u" else None, s1)
+             for k, (name, vector) in enumerate(self.state.vectors().items())}
+        dr.eval(y)
+        return y
+
+    def _pilot_steps(self) -> float:
+        """The small steps' s1 (pss.fine_steps), from the mean acceptance of one small
+        step with Kelemen's sizes from the start states of PILOT_CHAINS chains (every
+        chains / PILOT_CHAINS-th: MMLT's are sorted by length), on numbers of its own
+        and discarded: the kernel is fixed from the bootstrap's states before the
+        chains' first iteration (detailed balance holds for it), and a seed decides."""
+        full, n = self.state, self.chains
+        m = min(n, PILOT_CHAINS)
+        self.state = full.rows(dr.arange(mi.UInt32, m) * (n // m), self.dims)
+        self.chains = m
+        try:
+            y = self._proposals((0x5C, 1), dr.zeros(mi.Bool, m), dr.opaque(mi.Float, pss.S1))
+            keys = self._stream_keys(0x5C, 2)
+            ev = self._evaluate_proposal(keys, dr.arange(mi.UInt32, m), y)
+            a = dr.mean(pss.acceptance(self.state.f, ev.f))
+        finally:
+            self.state, self.chains = full, n
+        self.pilot_acceptance = float(a.numpy()[0])
+        return pss.fine_steps(self.pilot_acceptance)
+
     def _step_chains(self, i: int) -> None:
         x, n = self.state, self.chains
         chain = dr.arange(mi.UInt32, n)
         step_key = self._key(0x17, i)
         large = pss.hash_uniform(step_key, chain, 0) < dr.opaque(mi.Float, self.p_large)
-        y = {name: pss.propose(vector, self.dims[name], large, self._key(0x17, i, k),
-                               self.film_steps if name == "camera_u" else None)
-             for k, (name, vector) in enumerate(x.vectors().items())}
-        dr.eval(y)
+        y = self._proposals((0x17, i), large, dr.opaque(mi.Float, self.s1))
         ev = self._evaluate_proposal(self._stream_keys(0x7A, i), chain, y)
         a = pss.acceptance(x.f, ev.f)
         wy, wx = self._record_weights(x, ev, a, large)
@@ -679,6 +731,8 @@ class MLTRenderer:
                                    "acceptance": float(np.mean(self.acceptance))
                                    if self.acceptance else 0.0,
                                    "acceptance_small": self.step_acceptance()[0],
+                                   "pilot_acceptance": self.pilot_acceptance,
+                                   "small_step_s1": self.s1,
                                    "acceptance_large": self.step_acceptance()[1],
                                    "budget": self.name,
                                    "decision": "%s (BDPT samples)" % self.name})

@@ -49,6 +49,15 @@ S1, S2 = 1.0 / 1024.0, 1.0 / 64.0
 # gap 0.331 -> 0.247 (benchmarks/RESULTS.md).  s2 of 0.025 / 0.1 / 0.178 of the side
 # gave 0.204 / 0.198 / 0.217 on the 0.01 gap, s1 of 0.01 / 1 pixel 0.226 / 0.268.
 FILM_S1_PIXELS, FILM_S2 = 0.1, 0.05
+# Finer small steps where Kelemen's are mostly rejected: s1 = FINE_S1 instead of S1
+# (s2 kept) when Kelemen's steps from the chains' start states are accepted less than
+# FINE_BELOW, the acceptance that is optimal for random-walk Metropolis in many
+# dimensions (Roberts, Gelman and Gilks 1997).  MMLT, fixed iterations, relMSE, fine
+# steps on the camera and light numbers (benchmarks/RESULTS.md): door-ajar.xml's 0.01
+# gap (16384 chains, 600 iterations; Kelemen's accepted 6.5%) 0.120 -> 0.100, s1 of
+# 1/65536 and 1/262144 no better; the diffuse box (65536 chains, 20 iterations;
+# accepted 79%) 0.0072 -> 0.0076, hence the switch.
+FINE_S1, FINE_BELOW = 1.0 / 16384.0, 0.234
 _ONE_MINUS_EPS = 0.99999994
 _GOLDEN = 0x9E3779B9
 
@@ -87,12 +96,13 @@ def small_step(x: mi.Float, u_size: mi.Float, u_sign: mi.Float, s1=S1, s2=S2) ->
     return wrap(dr.select(u_sign < 0.5, x + dv, x - dv))
 
 
-def propose(x: mi.Float, dims: int, large: mi.Bool, key, film=None) -> mi.Float:
+def propose(x: mi.Float, dims: int, large: mi.Bool, key, film=None, s1=S1) -> mi.Float:
     """The proposal y of every chain's vector (``x``: chains x dims, row per chain):
     a large step (``large``, per chain) redraws every coordinate uniformly, a small
     step moves each (eager: all ``dims`` of them).  ``key`` (opaque UInt32) keys this
     iteration's numbers.  ``film`` (s1, s2), opaque Floats: the step sizes of each
-    row's first two coordinates, the film position (``film_steps``)."""
+    row's first two coordinates, the film position (``film_steps``).  ``s1``: the
+    other coordinates' smallest step (S1, or FINE_S1: ``fine_steps``)."""
     n = dr.width(x)
     element = dr.arange(mi.UInt32, n)
     # dims a literal (fixed by max_depth, not per seed): LLVM divides by a constant
@@ -103,11 +113,17 @@ def propose(x: mi.Float, dims: int, large: mi.Bool, key, film=None) -> mi.Float:
     u = mi.Float(bits >> 8) * (1.0 / (1 << 24))
     u_sign = dr.select((bits & 1) == 0, 0.0, 1.0)      # a bit apart from u's 24
     if film is None:
-        return dr.select(chain_large, u, small_step(x, u, u_sign))
+        return dr.select(chain_large, u, small_step(x, u, u_sign, s1))
     on_film = (element % dims) < 2
-    s1 = dr.select(on_film, film[0], S1)
+    s1 = dr.select(on_film, film[0], s1)
     s2 = dr.select(on_film, film[1], S2)
     return dr.select(chain_large, u, small_step(x, u, u_sign, s1, s2))
+
+
+def fine_steps(acceptance: float) -> float:
+    """s1 of the coordinates off the film for chains whose Kelemen small steps are
+    accepted at the rate ``acceptance`` (FINE_S1, FINE_BELOW)."""
+    return FINE_S1 if acceptance < FINE_BELOW else S1
 
 
 def film_steps(resolution: int) -> tuple:

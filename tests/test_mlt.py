@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import bdpt_drjit
-from bdpt_drjit import mlt, mmlt
+from bdpt_drjit import mlt, mmlt, pss
 from conftest import SCENES
 from stats import assert_statistically_equal
 
@@ -65,6 +65,22 @@ def test_other_steps_match_bdpt(p_large, mis, kind):
     refs = [bdpt_drjit.render(scene, spp=32, seed=200 + s, max_depth=5, light_paths=1,
                               connections="all").image for s in range(6)]
     assert_statistically_equal(runs, refs, blocks=4, what="p_large %g, mis %s" % (p_large, mis))
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_fine_steps_match_bdpt(kind, monkeypatch):
+    """The box's chains accept Kelemen's steps often (their pilot keeps them); with
+    the finer steps forced (pss.fine_steps at any acceptance) the image agrees too."""
+    scene = _box()
+    stats = _mlt(scene, 0, kind).stats
+    assert stats["pilot_acceptance"] > pss.FINE_BELOW and stats["small_step_s1"] == pss.S1
+    monkeypatch.setattr(pss, "FINE_BELOW", 1.01)
+    results = [_mlt(scene, seed, kind) for seed in range(6)]
+    assert all(r.stats["small_step_s1"] == pss.FINE_S1 for r in results)
+    refs = [bdpt_drjit.render(scene, spp=32, seed=400 + s, max_depth=5, light_paths=1,
+                              connections="all").image for s in range(6)]
+    assert_statistically_equal([r.image for r in results], refs, blocks=4,
+                               what="%s, fine steps" % kind)
 
 
 @pytest.mark.parametrize("kind", list(KINDS))

@@ -46,7 +46,7 @@ def _bin_probabilities():
     return p / p.sum()
 
 
-def _run_chains(x0, steps, p_large, asymmetric=False, seed=3, film=None):
+def _run_chains(x0, steps, p_large, asymmetric=False, seed=3, film=None, s1=pss.S1):
     x = mi.Float(x0)
     n = dr.width(x)
     fx = _target(x)
@@ -58,7 +58,7 @@ def _run_chains(x0, steps, p_large, asymmetric=False, seed=3, film=None):
             y = pss.wrap(x + pss.S2 * dr.exp(-dr.log(pss.S2 / pss.S1)
                                              * pss.hash_uniform(key, chain, 0)))
         else:
-            y = pss.propose(x, 1, large, key, film)
+            y = pss.propose(x, 1, large, key, film, s1)
         fy = _target(y)
         a = pss.acceptance(fx, fy)
         accept = pss.hash_uniform(key, chain, 1 << 21) < a
@@ -101,6 +101,31 @@ def test_small_step_sizes_are_kelemens():
     assert d.min() >= pss.S1 * (1 - 1e-3) and d.max() <= pss.S2 * (1 + 1e-3)
     u = np.log(d / pss.S1) / np.log(pss.S2 / pss.S1)
     assert stats.kstest(np.clip(u, 0, 1), "uniform").pvalue > 1e-3
+
+
+def test_fine_steps_keep_the_target():
+    """Detailed balance of the finer small steps (s1 = FINE_S1, pss.fine_steps)."""
+    x0 = _start_in_target(20000, np.random.default_rng(1))
+    assert _chi2_p(_run_chains(x0, 200, 0.0, s1=pss.FINE_S1)) > 1e-3
+
+
+def test_fine_step_sizes():
+    """|y - x| lies in [FINE_S1, S2] with log|y - x| uniform (x in [1/4, 1/2), where
+    float rounding is below 1e-3 of FINE_S1 and no step wraps)."""
+    n = 100000
+    x = mi.Float(0.25 + 0.25 * np.random.default_rng(6).random(n))
+    y = pss.propose(x, 1, dr.zeros(mi.Bool, n), dr.opaque(mi.UInt32, 79), None,
+                    dr.opaque(mi.Float, pss.FINE_S1))
+    d = np.abs(y.numpy() - x.numpy())
+    assert d.min() >= pss.FINE_S1 * (1 - 1e-3) and d.max() <= pss.S2 * (1 + 1e-3)
+    u = np.log(d / pss.FINE_S1) / np.log(pss.S2 / pss.FINE_S1)
+    assert stats.kstest(np.clip(u, 0, 1), "uniform").pvalue > 1e-3
+
+
+def test_fine_steps_where_kelemens_are_rejected():
+    """Finer steps only where Kelemen's are accepted less than FINE_BELOW."""
+    assert pss.fine_steps(0.05) == pss.FINE_S1 < pss.S1
+    assert pss.fine_steps(pss.FINE_BELOW) == pss.fine_steps(0.8) == pss.S1
 
 
 def test_film_steps_keep_the_target():
