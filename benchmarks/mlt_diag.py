@@ -10,7 +10,6 @@ import sys
 import time
 
 import drjit as dr
-import mitsuba as mi
 import numpy as np
 
 import bdpt_drjit  # noqa: F401

@@ -103,7 +103,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     door = Path(args.scene).name == "door-ajar.xml"
     scene = support.load_file(args.scene, resx=args.res, resy=args.res,
-                         **({"gap_start": args.gap_start} if door else {}))
+                              **({"gap_start": args.gap_start} if door else {}))
     t0 = time.perf_counter()
     ref, eps, ref_err = reference(scene, args.scene, args.res, args.ref_spp, args.gap_start)
     print("reference: %d spp of bdpt in %.0f s, mean %.6g; its own relMSE ~ %.4g (in every "

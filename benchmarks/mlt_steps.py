@@ -21,7 +21,6 @@ import argparse
 import time
 from pathlib import Path
 
-import mitsuba as mi
 import numpy as np
 
 import bdpt_drjit  # noqa: F401

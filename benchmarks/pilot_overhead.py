@@ -12,7 +12,6 @@ import argparse
 import time
 
 import drjit as dr
-import mitsuba as mi
 
 from bdpt_drjit import support
 
