@@ -1,6 +1,8 @@
 """Primary sample space Metropolis light transport (PSSMLT) over the wavefront BDPT:
 thousands of Markov chains, one per lane.
 
+    first stage      (``mlt``, two-stage) the image's brightness L per 8x8 block
+                     from samples of their own: the chains' target is f / L
     bootstrap        B independent BDPT samples (hashed primary samples, pss.py):
                      b = mean f, the image's normalization; chains start at
                      samples drawn in proportion to f (resampling)
@@ -127,8 +129,10 @@ PILOT_CHAINS = 4096
 BOOTSTRAP_LANES = 1 << 16       # lanes of a bootstrap batch (at least the chains)
 # Two-stage MLT (``two_stage``, MMLT's default; Mitsuba 0.6's twoStage; Hoberock and
 # Hart 2010, "Arbitrary importance functions for Metropolis light transport"): a first
-# stage of independent samples (keys of their own), one per planned chain and at least
-# BOOTSTRAP_LANES (an eighth of an automatic bootstrap's plan), estimates the image's luminance L on blocks of STAGE_BLOCK x STAGE_BLOCK pixels,
+# stage of independent samples (keys of their own), in batches of STAGE_LANES until
+# their effective sample size (sum f)^2 / sum f^2 reaches STAGE_ESS or they number the
+# planned chains (at least BOOTSTRAP_LANES; an eighth of an automatic bootstrap's
+# plan), estimates the image's luminance L on blocks of STAGE_BLOCK x STAGE_BLOCK pixels,
 # floored at STAGE_FLOOR x its mean, and the chains' target is f / L(record's pixel)
 # (``_target``).  Any positive target gives the same image in expectation (records are
 # weighted b / f); this one spends the chains' states evenly over the pixels instead of
@@ -137,7 +141,11 @@ BOOTSTRAP_LANES = 1 << 16       # lanes of a bootstrap batch (at least the chain
 # door's 0.01 gap: mean(L) mean(1/L) = 1.6 on the reference) the dark pixels' error
 # dominated (relMSE by brightness quartile, dark to bright, 0.117 / 0.056 / 0.050 /
 # 0.018; benchmarks/RESULTS.md).
-STAGE_BLOCK, STAGE_FLOOR = 8, 0.1
+# The door's 0.01 gap (600 iterations, seeds 1-2) needs the planned chains' 262144
+# (ESS ~1.4K): 65536 gave relMSE 0.064, 16384 0.078, 262144 0.055, 524288 0.055
+# (without two-stage 0.065); the diffuse box stops after 16384 (ESS ~15K), where a
+# stage of its 65536 planned chains cost a fifth of its iterations in 5 s.
+STAGE_BLOCK, STAGE_FLOOR, STAGE_LANES, STAGE_ESS = 8, 0.1, 1 << 14, 2048
 BDPT_PARAMS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
 # Separate direct samples (``direct_samples``, MLTRenderer._separate_direct): paths of up to
 # DIRECT_LENGTH edges (emitters seen directly, direct illumination) are rendered by
@@ -509,27 +517,29 @@ class MLTRenderer:
         return f
 
     def _first_stage(self) -> mi.Float:
-        """1 / L per pixel up to a constant (two-stage; STAGE_BLOCK, STAGE_FLOOR): the
-        image of max(planned chains, BOOTSTRAP_LANES) BDPT samples on keys of their own
-        (the target must not depend on the samples that estimate b and pick the start
-        states).  Their records of the direct lengths also go on the direct film, as
+        """1 / L per pixel up to a constant (two-stage; STAGE_*): the image of BDPT
+        samples on keys of their own (the target must not depend on the samples that
+        estimate b and pick the start states), in batches until their effective sample
+        size reaches STAGE_ESS or max(planned chains, BOOTSTRAP_LANES) are drawn.  Their records of the direct lengths also go on the direct film, as
         the bootstrap's (``stage_samples`` counts them)."""
         keys = self._stream_keys(0xB3)
         total = max(self.chains, BOOTSTRAP_LANES)
-        batch = max(self.chains, BOOTSTRAP_LANES)
         size = [int(v) for v in self.sensor.film().crop_size()]
-        lum = np.zeros(size[0] * size[1])
+        lum, sums, done = np.zeros(size[0] * size[1]), np.zeros(2), 0
         self.strategies.set_past(0)
-        for start in range(0, total, batch):
-            n = min(batch, total - start)
-            ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, start)
+        while done < total and not (sums[1] > 0 and sums[0] ** 2 >= STAGE_ESS * sums[1]):
+            n = min(STAGE_LANES, total - done)
+            ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, done)
             self.images = DirectLuminance(n)
             ev = self._evaluate_vectors(n, keys, ident, {name: None for name in self.dims})
             self._put_direct(ev)
             for records in (ev.camera, ev.splats):
                 lum += _pixel_sums(records, size)
+            f = np.nan_to_num(ev.f.numpy().astype(np.float64))
+            sums += (f.sum(), np.dot(f, f))
+            done += n
         self.images = None
-        self.stage_samples = total
+        self.stage_samples = done
         return mi.Float(pixel_weights(lum.reshape(size[1], size[0])).ravel())
 
     # -- start-up ---------------------------------------------------------------------
