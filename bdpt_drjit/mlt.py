@@ -139,8 +139,8 @@ BOOTSTRAP_LANES = 1 << 16       # lanes of a bootstrap batch (at least the chain
 # in proportion to their brightness, which is what a relative error asks for (MLT's
 # relative variance in pixel j goes as 1 / L_j).  Where L_j spans a wide range (the
 # door's 0.01 gap: mean(L) mean(1/L) = 1.6 on the reference) the dark pixels' error
-# dominated (relMSE by brightness quartile, dark to bright, 0.117 / 0.056 / 0.050 /
-# 0.018; benchmarks/RESULTS.md).
+# dominated (relMSE by brightness quartile, dark to bright, 0.121 / 0.057 / 0.051 /
+# 0.018; with two-stage 0.099 / 0.049 / 0.050 / 0.028; benchmarks/RESULTS.md).
 # The door's 0.01 gap (600 iterations, seeds 1-2) needs the planned chains' 262144
 # (ESS ~1.4K): 65536 gave relMSE 0.064, 16384 0.078, 262144 0.055, 524288 0.055
 # (without two-stage 0.065); the diffuse box stops after 16384 (ESS ~15K), where a
@@ -520,8 +520,9 @@ class MLTRenderer:
         """1 / L per pixel up to a constant (two-stage; STAGE_*): the image of BDPT
         samples on keys of their own (the target must not depend on the samples that
         estimate b and pick the start states), in batches until their effective sample
-        size reaches STAGE_ESS or max(planned chains, BOOTSTRAP_LANES) are drawn.  Their records of the direct lengths also go on the direct film, as
-        the bootstrap's (``stage_samples`` counts them)."""
+        size reaches STAGE_ESS or max(planned chains, BOOTSTRAP_LANES) are drawn.  Their
+        records of the direct lengths also go on the direct film, as the bootstrap's
+        (``stage_samples`` counts them)."""
         keys = self._stream_keys(0xB3)
         total = max(self.chains, BOOTSTRAP_LANES)
         size = [int(v) for v in self.sensor.film().crop_size()]
@@ -533,9 +534,10 @@ class MLTRenderer:
             self.images = DirectLuminance(n)
             ev = self._evaluate_vectors(n, keys, ident, {name: None for name in self.dims})
             self._put_direct(ev)
+            f = np.zeros(n)
             for records in (ev.camera, ev.splats):
-                lum += _pixel_sums(records, size)
-            f = np.nan_to_num(ev.f.numpy().astype(np.float64))
+                per_pixel, per_lane = _pixel_sums(records, size, n)
+                lum, f = lum + per_pixel, f + per_lane
             sums += (f.sum(), np.dot(f, f))
             done += n
         self.images = None
@@ -813,21 +815,22 @@ class MLTRenderer:
                                    "decision": "%s (BDPT samples)" % self.name})
 
 
-def _pixel_sums(records: Records, size) -> np.ndarray:
+def _pixel_sums(records: Records, size, lanes: int) -> tuple[np.ndarray, np.ndarray]:
     """The records' luminance summed per pixel (row-major, ``size`` = (width,
-    height)), in float64 and in an order fixed by the records' lanes, pixels and
-    values: the light image's records come in the order of atomic slots, and a float
-    sum (an image block's scatter-add among them) depends on it, so that the same seed
-    would not give the same weights."""
+    height)) and per lane, in float64 and in an order fixed by the records' lanes,
+    pixels and values: the light image's records come in the order of atomic slots,
+    and a float sum (an image block's scatter-add among them) depends on it, so that
+    the same seed would not give the same weights (or stage)."""
     if not dr.width(records.lane):
-        return np.zeros(size[0] * size[1])
+        return np.zeros(size[0] * size[1]), np.zeros(lanes)
     pos = records.pos.numpy()
     x = np.clip(np.floor(pos[0]).astype(np.int64), 0, size[0] - 1)
     y = np.clip(np.floor(pos[1]).astype(np.int64), 0, size[1] - 1)
     value = np.nan_to_num(records.value.numpy().mean(axis=0).astype(np.float64))
-    pixel = y * size[0] + x
-    order = np.lexsort((value, pixel, records.lane.numpy()))
-    return np.bincount(pixel[order], weights=value[order], minlength=size[0] * size[1])
+    pixel, lane = y * size[0] + x, records.lane.numpy()
+    order = np.lexsort((value, pixel, lane))
+    return (np.bincount(pixel[order], weights=value[order], minlength=size[0] * size[1]),
+            np.bincount(lane[order], weights=value[order], minlength=lanes))
 
 
 def pixel_weights(lum: np.ndarray) -> np.ndarray:
@@ -838,7 +841,8 @@ def pixel_weights(lum: np.ndarray) -> np.ndarray:
     k = STAGE_BLOCK
     hb, wb = -(-h // k), -(-w // k)
     pad = ((0, hb * k - h), (0, wb * k - w))
-    sums = np.pad(np.nan_to_num(lum.astype(np.float64)), pad).reshape(hb, k, wb, k).sum(axis=(1, 3))
+    sums = np.pad(np.nan_to_num(lum.astype(np.float64)), pad)
+    sums = sums.reshape(hb, k, wb, k).sum(axis=(1, 3))
     counts = np.pad(np.ones((h, w)), pad).reshape(hb, k, wb, k).sum(axis=(1, 3))
     level = np.repeat(np.repeat(sums / counts, k, axis=0), k, axis=1)[:h, :w]
     mean = level.mean()
