@@ -56,6 +56,7 @@ import numpy as np
 
 from . import camera as camera_stage
 from . import pss, support
+from .backend import device_array
 from .budgets import BDPT
 from .chain_strategies import ChainStrategies
 from .emitters import Emitters
@@ -542,7 +543,7 @@ class MLTRenderer:
             done += n
         self.images = None
         self.stage_samples = done
-        return mi.Float(pixel_weights(lum.reshape(size[1], size[0])).ravel())
+        return device_array(mi.Float, pixel_weights(lum.reshape(size[1], size[0])).ravel())
 
     # -- start-up ---------------------------------------------------------------------
     def bootstrap(self):
@@ -634,7 +635,7 @@ class MLTRenderer:
     def _resample(self, weights: np.ndarray) -> mi.UInt32:
         """``chains`` bootstrap samples drawn in proportion to ``weights``, stratified
         (chain c takes the quantile (c + u_c) / chains: the picks ascend with c)."""
-        dist = mi.DiscreteDistribution(mi.Float(weights.astype(np.float32)))
+        dist = mi.DiscreteDistribution(device_array(mi.Float, weights.astype(np.float32)))
         chain = dr.arange(mi.UInt32, self.chains)
         u = ((mi.Float(chain) + pss.hash_uniform(self._key(0xB1), chain, 0))
              / dr.opaque(mi.Float, self.chains))
@@ -823,10 +824,12 @@ def _pixel_sums(records: Records, size, lanes: int) -> tuple[np.ndarray, np.ndar
     the same seed would not give the same weights (or stage)."""
     if not dr.width(records.lane):
         return np.zeros(size[0] * size[1]), np.zeros(lanes)
-    pos = records.pos.numpy()
-    x = np.clip(np.floor(pos[0]).astype(np.int64), 0, size[0] - 1)
-    y = np.clip(np.floor(pos[1]).astype(np.int64), 0, size[1] - 1)
-    value = np.nan_to_num(records.value.numpy().mean(axis=0).astype(np.float64))
+    # Component by component: a whole Vector2f's or Spectrum's numpy() packs its
+    # components in a kernel with their width as a literal, one kernel per width.
+    x = np.clip(np.floor(records.pos.x.numpy()).astype(np.int64), 0, size[0] - 1)
+    y = np.clip(np.floor(records.pos.y.numpy()).astype(np.int64), 0, size[1] - 1)
+    value = np.nan_to_num(np.mean([records.value[c].numpy().astype(np.float64)
+                                   for c in range(len(records.value))], axis=0))
     pixel, lane = y * size[0] + x, records.lane.numpy()
     order = np.lexsort((value, pixel, lane))
     return (np.bincount(pixel[order], weights=value[order], minlength=size[0] * size[1]),

@@ -69,12 +69,18 @@ import mitsuba as mi
 import numpy as np
 
 from . import pss
+from .backend import device_array
 from .chain_strategies import ChainStrategies  # noqa: F401  (mmlt.ChainStrategies)
 from .mlt import (BOOTSTRAP_LANES, DIRECT_LENGTH, DIRECT_SHARE, ESS_STOP,  # noqa: F401
                   MIN_BOOTSTRAP, MIN_DIRECT_LANES, Chains, DirectLuminance, Evaluation,
                   MLTRenderer, chains_for_ess)
 from .optimizer import luminance
 
+
+
+def _per_depth(values: np.ndarray) -> mi.Float:
+    """Values per path length 1, 2, ..., gathered by length: 0 first (length 0)."""
+    return device_array(mi.Float, np.append(0.0, values).astype(np.float32))
 
 
 class StrategyLuminance(DirectLuminance):
@@ -294,12 +300,12 @@ class MMLTRenderer(MLTRenderer):
         k, s = k_of[cell][order], s_of[cell][order]
         jitter = pss.hash_uniform(self._key(0xB2), chain, 1).numpy()
         tech = np.minimum((s + jitter) / (k + 1), 0.99999994).astype(np.float32)
-        order_dr = mi.UInt32(order.astype(np.uint32))
+        order_dr = device_array(mi.UInt32, order.astype(np.uint32))
         pick = dr.gather(mi.UInt32, pick, order_dr)
         x = {name: pss.hashed_vectors(key, pick, self.dims[name])
              for name, key in zip(("camera_u", "light_u"), keys)}
-        x["tech_u"] = mi.Float(tech)
-        depth = mi.UInt32(k.astype(np.uint32))
+        x["tech_u"] = device_array(mi.Float, tech)
+        depth = device_array(mi.UInt32, k.astype(np.uint32))
         self.chains_per_depth = np.bincount(k, minlength=depths + 1)[1:]
         n_k = self.chains_per_depth
         c_k = np.where(n_k > 0, self.b_depths * n / np.maximum(n_k, 1), 0.0)
@@ -307,8 +313,8 @@ class MMLTRenderer(MLTRenderer):
         ev = self._evaluate_chains(keys, pick, x, depth)
         return MultiplexedChains(
             f=ev.f, camera=ev.camera, splats=ev.splats, depth=depth,
-            scale=dr.gather(mi.Float, mi.Float(np.append(0.0, c_k)), depth),
-            b_depth=dr.gather(mi.Float, mi.Float(np.append(0.0, self.b_depths)), depth), **x)
+            scale=dr.gather(mi.Float, _per_depth(c_k), depth),
+            b_depth=dr.gather(mi.Float, _per_depth(self.b_depths), depth), **x)
 
     def _evaluate_proposal(self, keys, identity, y: dict) -> Evaluation:
         return self._evaluate_chains(keys, identity, y, self.state.depth)
