@@ -14,6 +14,7 @@ import ctypes
 import functools
 
 import mitsuba as mi
+import numpy as np
 
 CPU_MEMORY_BUDGET = 2 * 1024 ** 3
 # Under CUDA: a quarter of the GPU's memory, between these.  Past ~8M lanes a pass's
@@ -58,3 +59,22 @@ def path_pass_lanes(memory_budget: int) -> int:
     """Lanes of a pass of Mitsuba's path under ``memory_budget``."""
     cap = PATH_PASS_LANES["cuda" if is_cuda() else "llvm"]
     return max(1024, min(cap, memory_budget // PATH_LANE_BYTES))
+
+
+# Dr.Jit's CPU backend reads a NumPy array in place, and a kernel that loads it is
+# compiled for the address's alignment ("align 64" or "align 1"): arrays in NumPy's
+# memory, aligned at random, made the kernels that read them differ from render to
+# render, compiled anew for a new seed (tests/test_mlt.py).
+ALIGN = 64
+
+
+def device_array(cls, values: np.ndarray):
+    """``cls(values)`` read from a copy of ``values`` aligned to ALIGN bytes, as
+    Dr.Jit's own buffers are, so that the kernels reading it do not depend on where
+    NumPy put ``values``."""
+    values = np.ascontiguousarray(values)
+    raw = np.empty(values.nbytes + ALIGN, dtype=np.uint8)
+    start = -raw.ctypes.data % ALIGN
+    aligned = raw[start:start + values.nbytes].view(values.dtype).reshape(values.shape)
+    aligned[...] = values
+    return cls(aligned)

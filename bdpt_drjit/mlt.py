@@ -1,6 +1,8 @@
 """Primary sample space Metropolis light transport (PSSMLT) over the wavefront BDPT:
 thousands of Markov chains, one per lane.
 
+    first stage      (``mlt``, two-stage) the image's brightness L per 8x8 block
+                     from samples of their own: the chains' target is f / L
     bootstrap        B independent BDPT samples (hashed primary samples, pss.py):
                      b = mean f, the image's normalization; chains start at
                      samples drawn in proportion to f (resampling)
@@ -54,6 +56,7 @@ import numpy as np
 
 from . import camera as camera_stage
 from . import pss, support
+from .backend import device_array
 from .budgets import BDPT
 from .chain_strategies import ChainStrategies
 from .emitters import Emitters
@@ -86,7 +89,7 @@ MLT_PARAMS = {"mutations_per_pixel": 0, "large_step_probability": 0.3,
 # equal time 0.1 gave 0.97x the default bdpt's relMSE on the door's 0.05 gap against
 # 0.3's 1.20x, 0.82x against 0.96x on its 0.01 gap (2 runs each), the box 23.9x
 # against 22.3x (benchmarks/RESULTS.md).
-MMLT_PARAMS = {"multiplex": "strategy", "large_step_probability": 0.1}
+MMLT_PARAMS = {"multiplex": "strategy", "large_step_probability": 0.1, "two_stage": True}
 MULTIPLEX = ("strategy", "length")
 # Automatic chains and bootstrap (automatic_plan).  The image's error is mostly the
 # chains' start: a chain forgets its bootstrap state only through accepted large steps
@@ -125,6 +128,25 @@ ESS_STOP = 1.0
 # pss.fine_steps): a mean acceptance to about 0.01, at the cost of a few ms.
 PILOT_CHAINS = 4096
 BOOTSTRAP_LANES = 1 << 16       # lanes of a bootstrap batch (at least the chains)
+# Two-stage MLT (``two_stage``, MMLT's default; Mitsuba 0.6's twoStage; Hoberock and
+# Hart 2010, "Arbitrary importance functions for Metropolis light transport"): a first
+# stage of independent samples (keys of their own), in batches of STAGE_LANES until
+# their effective sample size (sum f)^2 / sum f^2 reaches STAGE_ESS or they number the
+# planned chains (at least BOOTSTRAP_LANES; an eighth of an automatic bootstrap's
+# plan), estimates the image's luminance L on blocks of STAGE_BLOCK x STAGE_BLOCK pixels,
+# floored at STAGE_FLOOR x its mean, and the chains' target is f / L(record's pixel)
+# (``_target``).  Any positive target gives the same image in expectation (records are
+# weighted b / f); this one spends the chains' states evenly over the pixels instead of
+# in proportion to their brightness, which is what a relative error asks for (MLT's
+# relative variance in pixel j goes as 1 / L_j).  Where L_j spans a wide range (the
+# door's 0.01 gap: mean(L) mean(1/L) = 1.6 on the reference) the dark pixels' error
+# dominated (relMSE by brightness quartile, dark to bright, 0.121 / 0.057 / 0.051 /
+# 0.018; with two-stage 0.099 / 0.049 / 0.050 / 0.028; benchmarks/RESULTS.md).
+# The door's 0.01 gap (600 iterations, seeds 1-2) needs the planned chains' 262144
+# (ESS ~1.4K): 65536 gave relMSE 0.064, 16384 0.078, 262144 0.055, 524288 0.055
+# (without two-stage 0.065); the diffuse box stops after 16384 (ESS ~15K), where a
+# stage of its 65536 planned chains cost a fifth of its iterations in 5 s.
+STAGE_BLOCK, STAGE_FLOOR, STAGE_LANES, STAGE_ESS = 8, 0.1, 1 << 14, 2048
 BDPT_PARAMS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
 # Separate direct samples (``direct_samples``, MLTRenderer._separate_direct): paths of up to
 # DIRECT_LENGTH edges (emitters seen directly, direct illumination) are rendered by
@@ -189,6 +211,13 @@ class DirectLuminance:
         self.y = dr.zeros(mi.Float, lanes)
         self.direct = dr.zeros(mi.Spectrum, lanes)
         self.direct_splats = None
+        self.weight_at, self.camera_weight = None, 1.0
+
+    def weigh(self, weight_at, camera_pos) -> None:
+        """The target's pixel weights (MLTRenderer.weight_at): of the camera
+        strategies' records at the lanes' film positions ``camera_pos``, of the light
+        image's at theirs (StrategyLuminance)."""
+        self.weight_at, self.camera_weight = weight_at, weight_at(camera_pos)
 
     def add(self, lane, s, t, value, pos=None) -> None:
         k = mi.UInt32(s) + t - 1
@@ -381,6 +410,8 @@ class MLTRenderer:
         # then _direct's; b_chains the chains' brightness (b less b_direct if apart)
         self.b_direct, self.b_chains, self.direct_lanes = 0.0, 0.0, 0
         self.direct_film = FilmAccumulator(film, coalesce=False)
+        # two-stage: 1 / L per pixel (``_first_stage``), and the first stage's samples
+        self.two_stage, self.pixel_weight, self.stage_samples = mlt.get("two_stage", False), None, 0
         self.film_steps = pss.film_steps(int(max(film.crop_size())))
         self._configure()
         start = time.perf_counter()
@@ -438,6 +469,8 @@ class MLTRenderer:
         camera_sampler, light_sampler = samplers()
         rays = self.camera.sample_film_rays(camera_sampler, lanes)
         dr.eval(rays)
+        if self.images is not None and self.pixel_weight is not None:   # two-stage
+            self.images.weigh(self.weight_at, rays.pos)
         ctx = self._context(rays, camera_sampler, light_sampler, lanes, self._key(0x4E01))
         while True:
             store = LightVertexStore(lanes, lanes * self._capacity[0], lanes * self._capacity[1])
@@ -460,14 +493,57 @@ class MLTRenderer:
         else:
             splats = Records(pos=dr.zeros(mi.Vector2f, 0), value=dr.zeros(mi.Spectrum, 0),
                              lane=dr.zeros(mi.UInt32, 0))
-        f = luminance(cam.radiance)
-        if count:
-            dr.scatter_add(f, luminance(splats.value), splats.lane)
         camera = Records(pos=rays.pos, value=mi.Spectrum(cam.radiance),
                          lane=dr.arange(mi.UInt32, lanes))
+        f = self._target(camera, splats)
         totals = mi.Float64(dr.sum(cam.rays) + dr.sum(light_rays))
         dr.eval(f, camera, splats, totals)
         return Evaluation(f=f, camera=camera, splats=splats, rays=totals)
+
+    def weight_at(self, pos: mi.Vector2f):
+        """1 / L of the pixels at film positions ``pos`` (two-stage), or 1."""
+        if self.pixel_weight is None:
+            return 1.0
+        size = self.sensor.film().crop_size()
+        px = dr.clip(mi.Int32(dr.floor(pos.x)), 0, int(size.x) - 1)
+        py = dr.clip(mi.Int32(dr.floor(pos.y)), 0, int(size.y) - 1)
+        return dr.gather(mi.Float, self.pixel_weight, mi.UInt32(py * int(size.x) + px))
+
+    def _target(self, camera: Records, splats: Records) -> mi.Float:
+        """f of each lane's sample: the sum over its records of Y(value), each times
+        ``weight_at`` its position (two-stage: 1 / L of its pixel)."""
+        f = luminance(camera.value) * self.weight_at(camera.pos)
+        if dr.width(splats.lane):
+            dr.scatter_add(f, luminance(splats.value) * self.weight_at(splats.pos), splats.lane)
+        return f
+
+    def _first_stage(self) -> mi.Float:
+        """1 / L per pixel up to a constant (two-stage; STAGE_*): the image of BDPT
+        samples on keys of their own (the target must not depend on the samples that
+        estimate b and pick the start states), in batches until their effective sample
+        size reaches STAGE_ESS or max(planned chains, BOOTSTRAP_LANES) are drawn.  Their
+        records of the direct lengths also go on the direct film, as the bootstrap's
+        (``stage_samples`` counts them)."""
+        keys = self._stream_keys(0xB3)
+        total = max(self.chains, BOOTSTRAP_LANES)
+        size = [int(v) for v in self.sensor.film().crop_size()]
+        lum, sums, done = np.zeros(size[0] * size[1]), np.zeros(2), 0
+        self.strategies.set_past(0)
+        while done < total and not (sums[1] > 0 and sums[0] ** 2 >= STAGE_ESS * sums[1]):
+            n = min(STAGE_LANES, total - done)
+            ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, done)
+            self.images = DirectLuminance(n)
+            ev = self._evaluate_vectors(n, keys, ident, {name: None for name in self.dims})
+            self._put_direct(ev)
+            f = np.zeros(n)
+            for records in (ev.camera, ev.splats):
+                per_pixel, per_lane = _pixel_sums(records, size, n)
+                lum, f = lum + per_pixel, f + per_lane
+            sums += (f.sum(), np.dot(f, f))
+            done += n
+        self.images = None
+        self.stage_samples = done
+        return device_array(mi.Float, pixel_weights(lum.reshape(size[1], size[0])).ravel())
 
     # -- start-up ---------------------------------------------------------------------
     def bootstrap(self):
@@ -559,7 +635,7 @@ class MLTRenderer:
     def _resample(self, weights: np.ndarray) -> mi.UInt32:
         """``chains`` bootstrap samples drawn in proportion to ``weights``, stratified
         (chain c takes the quantile (c + u_c) / chains: the picks ascend with c)."""
-        dist = mi.DiscreteDistribution(mi.Float(weights.astype(np.float32)))
+        dist = mi.DiscreteDistribution(device_array(mi.Float, weights.astype(np.float32)))
         chain = dr.arange(mi.UInt32, self.chains)
         u = ((mi.Float(chain) + pss.hash_uniform(self._key(0xB1), chain, 0))
              / dr.opaque(mi.Float, self.chains))
@@ -708,7 +784,8 @@ class MLTRenderer:
         """The image so far: the chains', plus the direct samples' where apart."""
         image = self.chains_tensor()
         if self.direct_lanes:       # the bootstrap's and _direct's (the same estimator)
-            samples = self.bootstrap_samples + self.direct_lanes * self.iterations_done
+            samples = (self.bootstrap_samples + self.stage_samples
+                       + self.direct_lanes * self.iterations_done)
             image += self.direct_film.develop_light(self.pixels / samples)
         return image
 
@@ -723,6 +800,7 @@ class MLTRenderer:
                                    "mutations_per_pixel": mpp,
                                    "large_step_probability": self.p_large,
                                    "large_step_mis": self.large_step_mis,
+                                   "two_stage": self.two_stage,
                                    "bootstrap_samples": self.bootstrap_samples,
                                    "bootstrap_time": self.bootstrap_time,
                                    "start_states": self.start_states,
@@ -736,6 +814,45 @@ class MLTRenderer:
                                    "acceptance_large": self.step_acceptance()[1],
                                    "budget": self.name,
                                    "decision": "%s (BDPT samples)" % self.name})
+
+
+def _pixel_sums(records: Records, size, lanes: int) -> tuple[np.ndarray, np.ndarray]:
+    """The records' luminance summed per pixel (row-major, ``size`` = (width,
+    height)) and per lane, in float64 and in an order fixed by the records' lanes,
+    pixels and values: the light image's records come in the order of atomic slots,
+    and a float sum (an image block's scatter-add among them) depends on it, so that
+    the same seed would not give the same weights (or stage)."""
+    if not dr.width(records.lane):
+        return np.zeros(size[0] * size[1]), np.zeros(lanes)
+    # Component by component: a whole Vector2f's or Spectrum's numpy() packs its
+    # components in a kernel with their width as a literal, one kernel per width.
+    x = np.clip(np.floor(records.pos.x.numpy()).astype(np.int64), 0, size[0] - 1)
+    y = np.clip(np.floor(records.pos.y.numpy()).astype(np.int64), 0, size[1] - 1)
+    value = np.nan_to_num(np.mean([records.value[c].numpy().astype(np.float64)
+                                   for c in range(len(records.value))], axis=0))
+    pixel, lane = y * size[0] + x, records.lane.numpy()
+    order = np.lexsort((value, pixel, lane))
+    return (np.bincount(pixel[order], weights=value[order], minlength=size[0] * size[1]),
+            np.bincount(lane[order], weights=value[order], minlength=lanes))
+
+
+def pixel_weights(lum: np.ndarray) -> np.ndarray:
+    """1 / L for a first-stage luminance image (``_first_stage``): means over blocks of
+    STAGE_BLOCK x STAGE_BLOCK pixels, floored at STAGE_FLOOR x their mean, over their
+    mean (a black image: 1 everywhere)."""
+    h, w = lum.shape
+    k = STAGE_BLOCK
+    hb, wb = -(-h // k), -(-w // k)
+    pad = ((0, hb * k - h), (0, wb * k - w))
+    sums = np.pad(np.nan_to_num(lum.astype(np.float64)), pad)
+    sums = sums.reshape(hb, k, wb, k).sum(axis=(1, 3))
+    counts = np.pad(np.ones((h, w)), pad).reshape(hb, k, wb, k).sum(axis=(1, 3))
+    level = np.repeat(np.repeat(sums / counts, k, axis=0), k, axis=1)[:h, :w]
+    mean = level.mean()
+    if not mean > 0.0:
+        return np.ones((h, w), dtype=np.float32)
+    level = np.maximum(level, STAGE_FLOOR * mean)
+    return (level.mean() / level).astype(np.float32)
 
 
 def render(scene, seed: int = 0, sensor=0, **params) -> RenderResult:

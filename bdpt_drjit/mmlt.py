@@ -44,6 +44,15 @@ batch where the cells' effective sample size (sum L)^2 / sum L^2 reaches ESS_STO
 the planned chains (mlt.py): an easy scene (the diffuse box) then spends a quarter of
 its planned bootstrap, a hard one (the door's gaps) all or most of it.
 
+Two-stage (``two_stage``, the default; Hoberock and Hart 2010; mlt.py's STAGE_*): f_k
+is divided by the first stage's brightness L of the record's pixel (every f above,
+b_k, c_k and the bootstrap's cells are then of that target; the image is not, its
+records being weighted c_k / f).  An MMLT sample has one record, so each chain's
+state sits in one pixel: the chains spend their time evenly over dark and bright
+pixels.  Door, 0.01 gap, 600 iterations, seeds 1-2: relMSE 0.0595 / 0.0590 ->
+0.0514 / 0.0499 (the reference's 0.017 in each; benchmarks/RESULTS.md).  b, the
+direct decision and the automatic chains stay the luminance's (``b_plain``).
+
 With separate direct samples (mlt.py), b_1 and b_2 go to them: the chains start on
 cells of length 3 up only, and c_k of k <= 2 is 0.
 
@@ -60,12 +69,18 @@ import mitsuba as mi
 import numpy as np
 
 from . import pss
+from .backend import device_array
 from .chain_strategies import ChainStrategies  # noqa: F401  (mmlt.ChainStrategies)
 from .mlt import (BOOTSTRAP_LANES, DIRECT_LENGTH, DIRECT_SHARE, ESS_STOP,  # noqa: F401
                   MIN_BOOTSTRAP, MIN_DIRECT_LANES, Chains, DirectLuminance, Evaluation,
                   MLTRenderer, chains_for_ess)
 from .optimizer import luminance
 
+
+
+def _per_depth(values: np.ndarray) -> mi.Float:
+    """Values per path length 1, 2, ..., gathered by length: 0 first (length 0)."""
+    return device_array(mi.Float, np.append(0.0, values).astype(np.float32))
 
 
 class StrategyLuminance(DirectLuminance):
@@ -78,7 +93,8 @@ class StrategyLuminance(DirectLuminance):
         super().__init__(lanes)
         self.cells = cells(max_depth)
         self.max_depth = max_depth
-        self.values = dr.zeros(mi.Float, lanes * self.cells)
+        self.values = dr.zeros(mi.Float, lanes * self.cells)     # the target's (weighted)
+        self.plain = dr.zeros(mi.Float, lanes * self.cells)      # luminance alone
 
     def add(self, lane, s, t, value, pos=None) -> None:
         super().add(lane, s, t, value, pos)
@@ -86,6 +102,10 @@ class StrategyLuminance(DirectLuminance):
         y = luminance(value)
         active = (k >= 1) & (k <= self.max_depth) & (y != 0.0)
         index = mi.UInt32(lane) * self.cells + (k * (k + 1) - 2) // 2 + s
+        dr.scatter_add(self.plain, y, index, active)
+        if self.weight_at is not None:          # two-stage: the pixel's 1 / L
+            y = y * (dr.gather(mi.Float, self.camera_weight, mi.UInt32(lane))
+                     if pos is None else self.weight_at(pos))
         dr.scatter_add(self.values, y, index, active)
 
 
@@ -125,7 +145,7 @@ class MMLTRenderer(MLTRenderer):
     name = "mlt"
 
     def __init__(self, scene: mi.Scene, sensor=0, seed: int = 0, **params):
-        self.b_depths, self.chains_per_depth = None, None
+        self.b_depths, self.b_plain, self.chains_per_depth = None, None, None
         super().__init__(scene, sensor=sensor, seed=seed, **params)
 
     def _configure(self) -> None:
@@ -167,20 +187,21 @@ class MMLTRenderer(MLTRenderer):
         (``_start``) on the lengths the chains render."""
         if self.emitters.count == 0:            # black (support.check warned)
             return 0.0, None
+        if self.two_stage:
+            self.pixel_weight = self._first_stage()
         keys = self._stream_keys(0xB0)
-        targets, self.b_depths, self.bootstrap_samples = self._bootstrap_targets(
-            keys, self.bootstrap_samples)
-        b = float(self.b_depths.sum())
-        if b <= 0.0:
+        targets, (self.b_depths, self.b_plain), self.bootstrap_samples = \
+            self._bootstrap_targets(keys, self.bootstrap_samples)
+        b = float(self.b_plain.sum())           # the image's luminance, and its direct part
+        if b <= 0.0 or self.b_depths.sum() <= 0.0:
             return 0.0, None
-        self.b_direct = float(self.b_depths[:DIRECT_LENGTH].sum())
+        self.b_direct = float(self.b_plain[:DIRECT_LENGTH].sum())
         separate = self._separate_direct(b)
-        f_np, square = targets[separate]
+        f_np, ess = targets[separate]
         if separate:
             self.b_depths[:DIRECT_LENGTH] = 0.0
         b_chains = self.b_chains = float(self.b_depths.sum())
         if self.automatic_chains:       # the effective sample size of the cells (k, s, u)
-            ess = (b_chains * self.bootstrap_samples) ** 2 / square if square > 0.0 else 0.0
             self.chains = chains_for_ess(self.chains, ess)
             self.iterations = max(1, round(self.mutations / self.chains))
         self.direct_lanes = self._direct_lanes(b) if separate else 0
@@ -190,47 +211,50 @@ class MMLTRenderer(MLTRenderer):
 
     def _bootstrap_targets(self, keys, count: int):
         """Per bootstrap sample 0 .. n - 1 (every coordinate hashed), with and without
-        the lengths 1 .. DIRECT_LENGTH (``[separate]``): its strategies' luminance
-        summed, f, and the sum of their squares (the start states are cells (k, s) of
-        samples: their effective sample size (sum L)^2 / sum L^2 is at least that of
-        f, whose cross terms it lacks); the mean per path length, b_k; and n, the
-        samples drawn: ``count``, or (automatic bootstrap) fewer where both effective
-        sizes reach ESS_STOP x the planned chains first (``_enough``)."""
+        the lengths 1 .. DIRECT_LENGTH (``[separate]``): its strategies' target summed,
+        f, and the effective sample size of their luminances, (sum L)^2 / sum L^2 over
+        the cells (k, s) of samples (the start states are cells; it is at least that of
+        f, whose cross terms it lacks; the luminance's, not the two-stage target's, as
+        the automatic chains were measured with); the mean per path length of the
+        target, b_k, and of the luminance; and n, the samples drawn: ``count``, or
+        (automatic bootstrap) fewer where both effective sizes reach ESS_STOP x the
+        planned chains first (``_enough``)."""
         self.strategies.set_lanes(None, None)
         depths = self.settings.max_depth
-        f_all, sums, squares = ([], []), np.zeros(depths), np.zeros(2)
+        f_all, sums, plain = ([], []), np.zeros(depths), np.zeros(depths)
+        totals, squares = np.zeros(2), np.zeros(2)
         batch = max(self.chains, BOOTSTRAP_LANES)
         k_of, _ = self._cell_table()
         far = k_of > DIRECT_LENGTH
         done = 0
-        while done < count and not (done and self._enough(done, f_all, squares)):
+        while done < count and not (done and self._enough(done, totals, squares)):
             n = min(batch, count - done)
             ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, done)
             self.images = StrategyLuminance(n, depths)
             ev = self._evaluate_vectors(n, keys, ident, {name: None for name in self.dims})
             self._put_direct(ev)
-            per_cell = self._cells(n)
+            per_cell, lum = self._cells(n), self._cells(n, "plain")
             sums += np.bincount(k_of - 1, weights=per_cell.sum(axis=0), minlength=depths)
-            for j, cells_j in enumerate((per_cell, per_cell[:, far])):
-                squares[j] += float(np.sum(cells_j * cells_j))
-                f_all[j].append(cells_j.sum(axis=1))
+            plain += np.bincount(k_of - 1, weights=lum.sum(axis=0), minlength=depths)
+            for j, cols in enumerate((slice(None), far)):
+                totals[j] += float(lum[:, cols].sum())
+                squares[j] += float(np.sum(lum[:, cols] ** 2))
+                f_all[j].append(per_cell[:, cols].sum(axis=1))
             done += n
         self.images = None
-        targets = [(np.concatenate(f_all[j]), squares[j]) for j in range(2)]
-        return targets, sums / done, done
+        ess = [totals[j] ** 2 / squares[j] if squares[j] > 0.0 else 0.0 for j in range(2)]
+        targets = [(np.concatenate(f_all[j]), ess[j]) for j in range(2)]
+        return targets, (sums / done, plain / done), done
 
-    def _enough(self, done: int, f_all, squares) -> bool:
+    def _enough(self, done: int, totals, squares) -> bool:
         """Whether an automatic bootstrap of ``done`` samples (at least MIN_BOOTSTRAP)
         may stop: the effective sample size of its cells, with and without the direct
-        lengths, is at least ESS_STOP x the planned chains (each chain can start on a
-        state of its own; mlt.ESS_STOP)."""
+        lengths (``totals`` and ``squares`` of their luminances), is at least ESS_STOP x
+        the planned chains (each chain can start on a state of its own; mlt.ESS_STOP)."""
         if not self.automatic_bootstrap or done < MIN_BOOTSTRAP:
             return False
-        for parts, square in zip(f_all, squares):
-            total = sum(float(part.sum()) for part in parts)
-            if square <= 0.0 or total * total / square < ESS_STOP * self.chains:
-                return False
-        return True
+        return all(square > 0.0 and total * total / square >= ESS_STOP * self.chains
+                   for total, square in zip(totals, squares))
 
     def _cell_table(self):
         """(k, s) of the start states' cells: a strategy each, or (``multiplex="length"``)
@@ -240,9 +264,10 @@ class MMLTRenderer(MLTRenderer):
             return np.arange(1, depths + 1), np.zeros(depths, dtype=int)
         return cell_table(depths)
 
-    def _cells(self, n: int) -> np.ndarray:
-        """The last evaluation's StrategyLuminance as lanes x cells (``_cell_table``)."""
-        per_cell = self.images.values.numpy().reshape(n, -1).astype(np.float64)
+    def _cells(self, n: int, which: str = "values") -> np.ndarray:
+        """The last evaluation's StrategyLuminance (its target's ``values`` or the
+        ``plain`` luminance) as lanes x cells (``_cell_table``)."""
+        per_cell = getattr(self.images, which).numpy().reshape(n, -1).astype(np.float64)
         per_cell[~np.isfinite(per_cell)] = 0.0
         if self.multiplex == "length":
             k_of, _ = cell_table(self.settings.max_depth)
@@ -275,12 +300,12 @@ class MMLTRenderer(MLTRenderer):
         k, s = k_of[cell][order], s_of[cell][order]
         jitter = pss.hash_uniform(self._key(0xB2), chain, 1).numpy()
         tech = np.minimum((s + jitter) / (k + 1), 0.99999994).astype(np.float32)
-        order_dr = mi.UInt32(order.astype(np.uint32))
+        order_dr = device_array(mi.UInt32, order.astype(np.uint32))
         pick = dr.gather(mi.UInt32, pick, order_dr)
         x = {name: pss.hashed_vectors(key, pick, self.dims[name])
              for name, key in zip(("camera_u", "light_u"), keys)}
-        x["tech_u"] = mi.Float(tech)
-        depth = mi.UInt32(k.astype(np.uint32))
+        x["tech_u"] = device_array(mi.Float, tech)
+        depth = device_array(mi.UInt32, k.astype(np.uint32))
         self.chains_per_depth = np.bincount(k, minlength=depths + 1)[1:]
         n_k = self.chains_per_depth
         c_k = np.where(n_k > 0, self.b_depths * n / np.maximum(n_k, 1), 0.0)
@@ -288,8 +313,8 @@ class MMLTRenderer(MLTRenderer):
         ev = self._evaluate_chains(keys, pick, x, depth)
         return MultiplexedChains(
             f=ev.f, camera=ev.camera, splats=ev.splats, depth=depth,
-            scale=dr.gather(mi.Float, mi.Float(np.append(0.0, c_k)), depth),
-            b_depth=dr.gather(mi.Float, mi.Float(np.append(0.0, self.b_depths)), depth), **x)
+            scale=dr.gather(mi.Float, _per_depth(c_k), depth),
+            b_depth=dr.gather(mi.Float, _per_depth(self.b_depths), depth), **x)
 
     def _evaluate_proposal(self, keys, identity, y: dict) -> Evaluation:
         return self._evaluate_chains(keys, identity, y, self.state.depth)
@@ -303,6 +328,7 @@ class MMLTRenderer(MLTRenderer):
         res = super().result()
         if self.chains_per_depth is not None:
             res.stats["b_depths"] = [float(v) for v in self.b_depths]
+            res.stats["b_luminance_depths"] = [float(v) for v in self.b_plain]
             res.stats["chains_per_depth"] = [int(v) for v in self.chains_per_depth]
         return res
 

@@ -37,7 +37,7 @@ def trace(scene, ref, eps, seconds, seeds):
         r = mmlt.MMLTRenderer(scene, seed=seed, max_depth=8, mutations_per_pixel=1 << 16)
         print("seed %d: bootstrap %.2f s of %d samples, %d chains on %d start states, b_k / b %s"
               % (seed, r.bootstrap_time, r.bootstrap_samples, r.chains, r.start_states,
-                 np.round(r.b_depths / r.b, 3).tolist()))
+                 np.round(r.b_plain / r.b, 3).tolist()))
         times, marks = [], []
         while r.iterations_done == 0 or r.time < seconds:
             t = time.perf_counter()

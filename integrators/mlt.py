@@ -54,6 +54,12 @@ variants, heterogeneous media, ``mis=lafortune``, and the BDPT budget parameters
        the brightness (a power of two, at least 1024) where that share is at least 25%,
        else none; -1 = none (Default: 0; Mitsuba 0.6: ``directSamples``, per pixel in
        all)
+   * - two_stage
+     - Two-stage MLT (Hoberock and Hart 2010): a first stage of independent samples
+       (one per planned chain, at least 65536) estimates the image's brightness L on
+       blocks of 8 x 8 pixels, and the chains' target is their luminance over L of the
+       record's pixel, so that they spend their time evenly over dark and bright
+       pixels (Default: true; Mitsuba 0.6: ``twoStage``)
    * - max_depth
      - Longest path in edges, finite (Default: none: must be given)
    * - rr_depth, mis, light_image, hide_emitters

@@ -63,7 +63,6 @@ LEGACY = {"pLarge": "large_step_probability", "luminanceSamples": "bootstrap_sam
           "maxDepth": "max_depth", "rrDepth": "rr_depth", "hideEmitters": "hide_emitters",
           "lightImage": "light_image", "directSamples": "direct_samples"}
 LEGACY_REFUSED = {
-    "twoStage": "two-stage MLT is not implemented",
     "bidirectional": "the chains' samples are always BDPT samples",
 }
 _CLASSES = {}
@@ -73,6 +72,12 @@ def settings_from(props: mi.Properties, name: str = "pssmlt") -> dict:
     from bdpt_drjit import mlt
     out = {}
     for key in props.keys():
+        if key == "twoStage" and name == "mlt":
+            out["two_stage"] = props[key]
+            continue
+        if key == "twoStage":
+            raise ValueError("%s: Mitsuba 0.6 parameter 'twoStage' has no equivalent: "
+                             "two-stage MLT is the mlt integrator's (two_stage)" % name)
         if key in LEGACY_REFUSED:
             raise ValueError("%s: Mitsuba 0.6 parameter '%s' has no equivalent: %s"
                              % (name, key, LEGACY_REFUSED[key]))

@@ -91,3 +91,21 @@ def test_a_pass_reads_the_host_a_few_times():
         copies.append(sum(e["type"] == dr.KernelType.Memcpy for e in dr.kernel_history()))
     assert renderer.pilot is not None and len(copies) >= 2
     assert max(copies) <= 6, copies
+
+
+def test_numpy_values_are_read_by_the_same_kernels_whatever_their_alignment():
+    """Dr.Jit reads a NumPy array in place and compiles its readers for the address's
+    alignment; backend.device_array copies values to an aligned buffer first, so that
+    a kernel reading them is the same whatever NumPy's allocation."""
+    import numpy as np
+    from bdpt_drjit.backend import device_array
+    hashes = set()
+    for offset in range(4):                      # 0, 4, 8, 12 bytes past 64
+        raw = np.zeros(1024 + 64, dtype=np.uint32)
+        start = -(raw.ctypes.data // 4) % 16 + offset
+        values = raw[start:start + 1024]
+        values[:] = np.arange(1024)
+        x = device_array(mi.UInt32, values)
+        entries = launches(lambda: dr.eval(x * 3 + 1))
+        hashes |= {e["hash"] for e in entries if e["size"] == 1024}  # not earlier tests'
+    assert len(hashes) == 1

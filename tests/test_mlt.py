@@ -86,10 +86,12 @@ def test_fine_steps_match_bdpt(kind, monkeypatch):
 @pytest.mark.parametrize("kind", list(KINDS))
 def test_image_sum_is_b_at_every_iteration(kind):
     """mlt: sum over chains of c_k = sum_k n_k b_k N / n_k = b N (without Kelemen's MIS;
-    without the separate direct samples: test_direct_samples)."""
+    without the separate direct samples: test_direct_samples; without two-stage, whose
+    target is not the luminance: test_mmlt.py)."""
     scene = _box()
+    two = {"two_stage": False} if kind == "mlt" else {}
     r = KINDS[kind][1](scene, seed=3, mutations_per_pixel=8, bootstrap_samples=8192,
-                       chains=512, max_depth=5, large_step_mis=False, direct_samples=-1)
+                       chains=512, max_depth=5, large_step_mis=False, direct_samples=-1, **two)
     assert r.b > 0
     while not r.done:
         r.run_iteration()
@@ -112,7 +114,8 @@ def test_direct_samples(kind):
     renderer = KINDS[kind][1]
     kw = dict(mutations_per_pixel=8, bootstrap_samples=8192, chains=512, max_depth=5,
               large_step_mis=False)
-    r = renderer(scene, seed=3, **kw)
+    two = {"two_stage": False} if kind == "mlt" else {}     # the luminance's sums
+    r = renderer(scene, seed=3, **kw, **two)
     assert r.direct_lanes == mlt.MIN_DIRECT_LANES and r.b_direct > mlt.DIRECT_SHARE * r.b
     assert abs(r.b_chains / (r.b - r.b_direct) - 1.0) < 1e-4
     if kind == "mlt":
@@ -231,6 +234,9 @@ def test_unbounded_depth_and_filters():
 
 @pytest.mark.parametrize("kind", list(KINDS))
 def test_no_kernel_per_iteration_or_seed(kind):
+    """mlt with two-stage too: its first stage's records once went to NumPy as whole
+    vectors (a kernel per width), and NumPy's arrays, read in place at their own
+    alignment, compiled their readers anew when it differed (backend.device_array)."""
     scene = _box()
     with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
         _mlt(scene, 1, kind, mutations_per_pixel=8)

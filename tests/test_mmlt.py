@@ -74,11 +74,12 @@ def test_b_per_path_length_matches_bdpt():
     per_k = [ref.length_images[k][..., :3].mean() if k in ref.length_images else
              sum(v[..., :3].mean() for (s, t), v in ref.strategy_images.items()
                  if s + t - 1 == k) for k in range(1, 5)]
-    assert np.allclose(r.b_depths, per_k, rtol=0.03), (r.b_depths, per_k)
+    assert np.allclose(r.b_plain, per_k, rtol=0.03), (r.b_plain, per_k)
+    assert r.b == pytest.approx(r.b_plain.sum())
     assert r.chains_per_depth.sum() == r.chains == 4096
-    # chains over lengths in proportion to b_k (stratified resampling)
-    share = r.chains_per_depth / r.chains
-    assert np.allclose(share, r.b_depths / r.b, atol=0.02), (share, r.b_depths / r.b)
+    # chains over lengths in proportion to the target's b_k (stratified resampling)
+    share, target = r.chains_per_depth / r.chains, r.b_depths / r.b_depths.sum()
+    assert np.allclose(share, target, atol=0.02), (share, target)
 
 
 @pytest.mark.parametrize("multiplex", ["strategy", "length"])
@@ -121,6 +122,59 @@ def test_automatic_bootstrap_stops_at_the_chains_effective_size():
     assert auto.b == fixed.b and auto.direct_lanes == fixed.direct_lanes > 0
     assert np.allclose(auto.result().image, fixed.result().image, rtol=1e-5, atol=1e-8)
     assert auto.result().stats["bootstrap_samples"] == 131072
+
+
+def test_pixel_weights_are_first_stage_block_means_floored():
+    """mlt.pixel_weights: 1 / L over blocks of STAGE_BLOCK^2 pixels (partial blocks at
+    the edges), floored at STAGE_FLOOR x the mean, over their mean; 1 where black."""
+    from bdpt_drjit import mlt
+    k = mlt.STAGE_BLOCK
+    lum = np.zeros((2 * k, 3 * k - 2))
+    lum[:k, :k], lum[:k, k:2 * k], lum[k:, :k] = 4.0, 1.0, 0.5
+    lum[0, 0] = np.nan                       # a non-finite pixel counts as black
+    w = mlt.pixel_weights(lum)
+    level = np.maximum(np.array([[4.0 - 4.0 / k ** 2, 1.0, 0.0], [0.5, 0.0, 0.0]]),
+                       mlt.STAGE_FLOOR * (4 - 4 / k ** 2 + 1.5) * k * k / lum.size)
+    per_pixel = np.repeat(np.repeat(level, k, 0), k, 1)[:, :3 * k - 2]
+    assert np.allclose(w, per_pixel.mean() / per_pixel, rtol=1e-5)
+    assert (mlt.pixel_weights(np.zeros((5, 7))) == 1.0).all()
+
+
+def test_two_stage_target_is_luminance_over_the_first_stage():
+    """two_stage: a lane's target is the sum over its records of Y(value) times 1 / L
+    of the record's pixel (the first stage's mlt.pixel_weights), in the bootstrap's
+    cells and the chains alike; b and the chains' plan are the luminance's, as
+    without it (the same bootstrap samples).  The same seed gives the same weights
+    (the light image's records come in the order of atomic slots)."""
+    from bdpt_drjit import mlt
+    scene = _box()
+    kw = dict(seed=2, mutations_per_pixel=4, bootstrap_samples=8192, chains=512,
+              max_depth=5, direct_samples=-1)
+    a = mmlt.MMLTRenderer(scene, two_stage=True, **kw)
+    plain = mmlt.MMLTRenderer(scene, two_stage=False, **kw)
+    again = mmlt.MMLTRenderer(scene, two_stage=True, **kw)
+    assert (a.pixel_weight.numpy() == again.pixel_weight.numpy()).all()
+    assert (a.state.f.numpy() == again.state.f.numpy()).all()
+    assert plain.pixel_weight is None and a.stage_samples == mlt.STAGE_LANES
+    assert a.b == pytest.approx(plain.b, rel=1e-5) and a.chains == plain.chains
+    assert np.allclose(a.b_plain, plain.b_depths, rtol=1e-5)
+    w = a.pixel_weight.numpy().reshape(16, 16)
+    assert w.min() > 0 and w.max() / w.min() > 2            # the lamp's pixels weigh less
+    a.strategies.set_lanes(None, None)
+    a.images = mmlt.StrategyLuminance(a.chains, 5)
+    keys = a._stream_keys(0xB0)
+    ev = a._evaluate_vectors(a.chains, keys, dr.arange(mi.UInt32, a.chains),
+                             a.state.vectors())
+    cells = a.images.values.numpy().reshape(a.chains, -1)
+    a.images = None
+
+    def weighted(records):
+        pos = np.minimum(np.floor(records.pos.numpy()).astype(int), 15)
+        return records.value.numpy().mean(axis=0) * w[pos[1], pos[0]]
+    f = weighted(ev.camera)
+    np.add.at(f, ev.splats.lane.numpy(), weighted(ev.splats))
+    assert np.allclose(ev.f.numpy(), f, rtol=1e-4, atol=1e-7)
+    assert np.allclose(cells.sum(axis=1), f, rtol=1e-3, atol=1e-6)
 
 
 def test_strategy_stream_keeps_its_target():
@@ -200,7 +254,8 @@ def test_cli(tmp_path):
     cmd = [sys.executable, "-m", "bdpt_drjit", "mlt", str(SCENES / "cornell-box.xml"),
            "--integrator", "mlt", "--res", "16x16", "--spp", "64", "--chains", "256",
            "--bootstrap-samples", "4096", "--max-depth", "5", "--no-large-step-mis",
-           "--direct-samples", "-1", "-o", str(out)]   # the image is then b's alone
+           "--direct-samples", "-1", "--no-two-stage",
+           "-o", str(out)]   # the image is then b's alone
     p = subprocess.run(cmd + ["--time", "0.01"], capture_output=True, text=True, timeout=300,
                        env=cli_env())
     assert p.returncode == 0, p.stderr

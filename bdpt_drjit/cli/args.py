@@ -203,6 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--multiplex", choices=("strategy", "length"),
                    help="mlt: what a chain fixes besides its path length: its strategy "
                    "(default, as pbrt) or all strategies of its length")
+    t.add_argument("--no-two-stage", dest="two_stage", action="store_false", default=None,
+                   help="mlt: the chains' target is the luminance (default: over the "
+                   "brightness of the record's pixel, from a first stage)")
     t.add_argument("--direct-samples", type=int_at_least(-1), metavar="N",
                    help="paths of 1 and 2 edges by N independent samples per pixel per "
                    "iteration instead of the chains (default 0: automatic, where they carry "

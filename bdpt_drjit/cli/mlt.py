@@ -4,8 +4,8 @@ iteration, a time budget and stops.
 
 An iteration mutates every chain once; the command stops after the iteration that
 crosses ``--time`` or after a Ctrl-C (SIGINT) or SIGTERM, and writes the image of
-the iterations done: its normalization, b N over the mutations made, holds after
-any whole iteration (mlt.py), so an early stop gives a correct, noisier image.  The
+the iterations done: its normalization holds after any whole iteration (mlt.py), so
+an early stop gives a correct, noisier image.  The
 bootstrap cannot be stopped part way: a signal during it ends the command with
 nothing written."""
 from __future__ import annotations
@@ -19,7 +19,7 @@ from .scene import check_sensor_index, integrator_defaults, load_scene, scene_pa
 
 _BDPT_KEYS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
 _MLT_KEYS = ("mutations_per_pixel", "large_step_probability", "bootstrap_samples", "chains",
-             "large_step_mis", "multiplex", "direct_samples")
+             "large_step_mis", "multiplex", "direct_samples", "two_stage")
 
 
 def _params(args, scene) -> dict:
