@@ -34,9 +34,10 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-# Recordings kept per walk (LRU): a render has a few kinds of pass (the pilot, the
-# budget's passes, a last smaller one); more would hold kernels' memory for nothing.
-LIMIT = 8
+# Recordings kept, of all walks together (LRU): a render's kinds of pass (the pilot,
+# the budget's passes, its moment passes, a pass with outgrown pools) take two each
+# (the Cornell box at 128x128: 7); past the limit each render would record again.
+LIMIT = 16
 
 _SCALARS = (int, float, str, bool, bytes, type(None), enum.Enum, complex)
 
