@@ -119,6 +119,17 @@ def _function(fn, key: list, state: list, seen: dict) -> None:
         _inputs(fn.__defaults__, key, state, seen)
 
 
+def scene_values(scene) -> tuple:
+    """The scene's parameters that are Python values, not arrays (a dielectric's eta,
+    a sensor's clip planes): Mitsuba bakes them into the kernels that call its plugins,
+    so a render puts them in its passes' context (render.PassContext), whose values key
+    the recordings: an eta changed between renders (``mi.traverse``) then records anew
+    instead of replaying the old one."""
+    params = mi.traverse(scene)
+    return tuple((name, repr(params[name])) for name in params.keys()
+                 if not dr.is_jit_v(params[name]))
+
+
 def _sampler_key(sampler) -> tuple:
     """What a sampler's calls bake into kernels and its traversal does not give."""
     return (sampler.class_name(), sampler.sample_count(), sampler.wavefront_size())

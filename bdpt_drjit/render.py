@@ -88,6 +88,7 @@ class PassContext:
     mis_rates: tuple = (1.0, 1.0, 0.0)  # N_L / N_C, kappa and eta of the MIS weights
     grid: merge.HashGrid | None = None  # merging: the pass's light vertices (merge.py)
     merge_radius: float = 0.0          # merging: this pass's radius r_i
+    scene_values: tuple = ()           # frozen.scene_values: keys the walks' recordings
 
     def light_subpath(self, lane):
         """The light subpath camera lane ``lane`` connects to (i mod N_L)."""
@@ -294,6 +295,7 @@ class Renderer:
         support.warn_of_light_tracing_paths(scene, self.settings)
         self.emitters = Emitters(scene)
         self.media = Media(scene, self.sensor)
+        self._scene_values = frozen.scene_values(scene)
         fixed = fixed_budget(self.settings)
         if strategy_images and fixed is None:   # the layers show every BDPT strategy
             fixed = BDPT
@@ -607,7 +609,7 @@ class Renderer:
             moments=(MomentSamples(lanes, every, weights.shadow, record, allocate=False)
                      if moments else None),
             mis_rates=rates,
-            merge_radius=radius)
+            merge_radius=radius, scene_values=self._scene_values)
 
     def _render_pass(self, index, pixel_offset, n_pixels, spp, lanes):
         if (self._path_tracer is not None and index >= Pilot.PASSES

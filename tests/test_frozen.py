@@ -91,3 +91,17 @@ def test_swapped_values_record_anew(freezing):
         traced, _ = _render(box, False, seed=1, max_depth=4, technique=technique)
         assert traced.mean() > 0
         np.testing.assert_allclose(replayed, traced, **TOL)
+
+
+def test_a_changed_scalar_parameter_records_anew(freezing):
+    """A dielectric's eta is a Python float that Mitsuba bakes into the walks' kernels:
+    changed between renders (mi.traverse), the pass records anew (frozen.scene_values)
+    instead of replaying the kernels of the old eta."""
+    scene = mi.load_file(scene_path("glass-pane.xml"), resx=16, resy=16)
+    _render(scene, True, seed=1, light_paths=1, connections="all")
+    params = mi.traverse(scene)
+    params["pane.bsdf.eta"] = 2.4
+    params.update()
+    replayed, _ = _render(scene, True, seed=1, light_paths=1, connections="all")
+    traced, _ = _render(scene, False, seed=1, light_paths=1, connections="all")
+    np.testing.assert_allclose(replayed, traced, **TOL)
