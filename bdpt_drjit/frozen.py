@@ -144,6 +144,14 @@ class _Calls:
     def __init__(self):
         self.stack = []
         self.alive = {}         # id -> object: kept alive while recordings name it
+        self.failed = set()     # digests whose recording failed: traced from then on
+
+
+class RecordingFailed(RuntimeError):
+    """``dr.freeze`` could not record a walk (a nested virtual call, such as an emitter
+    whose radiance is a texture, in Dr.Jit 1.5).  The walk ran, but its inputs (the
+    samplers) have moved on: the caller runs its pass again, and this key is traced
+    from then on."""
 
 
 _calls = _Calls()
@@ -176,10 +184,19 @@ def call(fn, *args):
         return fn(*args)
     key, state, seen = [mi.variant()], [], {}
     _inputs((fn, args), key, state, seen)
+    digest = _digest(key)
+    if digest in _calls.failed:
+        return fn(*args)
     _keep_alive(state)
     _calls.stack.append((fn, state, args))
     try:
-        return _frozen(_digest(key))
+        recorded = _frozen.n_recordings
+        return _frozen(digest)
+    except RuntimeError as error:
+        if _frozen.n_recordings == recorded:   # not a recording's failure
+            raise
+        _calls.failed.add(digest)
+        raise RecordingFailed(str(error)) from error
     finally:
         _calls.stack.pop()
 
@@ -199,5 +216,5 @@ def _keep_alive(state: list) -> None:
                and not isinstance(o, mi.Sampler)}
     if any(isinstance(o, mi.Scene) and i not in _calls.alive for i, o in objects.items()):
         _frozen.clear()
-        _calls.alive = {}
+        _calls.alive, _calls.failed = {}, set()
     _calls.alive.update(objects)

@@ -533,7 +533,11 @@ class Renderer:
         start = time.perf_counter()
         history = dr.flag(dr.JitFlag.KernelHistory) or self.timings is not None
         with dr.suspend_grad(), dr.scoped_set_flag(dr.JitFlag.KernelHistory, history):
-            self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
+            try:
+                self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
+            except frozen.RecordingFailed:
+                # Nothing reached the film before the walks: the pass again, traced.
+                self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
             if self._outgrown:
                 self._outgrown = False
                 self._replan(index)

@@ -105,3 +105,21 @@ def test_a_changed_scalar_parameter_records_anew(freezing):
     replayed, _ = _render(scene, True, seed=1, light_paths=1, connections="all")
     traced, _ = _render(scene, False, seed=1, light_paths=1, connections="all")
     np.testing.assert_allclose(replayed, traced, **TOL)
+
+
+def test_a_walk_that_cannot_be_recorded_is_traced(freezing):
+    """Mitsuba's various-emitters scene (textured area lights, a textured spot, a
+    projector): Dr.Jit 1.5 cannot record its light walk (a virtual call whose
+    instances it does not find).  The pass runs again traced (frozen.RecordingFailed),
+    and later passes trace that walk: the image is the traced one.  Failed before:
+    the recording's RuntimeError ended the render."""
+    from bdpt_drjit import support
+    from conftest import external
+    path = external("mitsuba-tests", "tests", "scenes", "various_emitters",
+                    "test_various_emitters_ptracer.xml")
+    scene = support.load_file(path, integrator="path", resx=16, resy=16)
+    replayed, _ = _render(scene, True, seed=1, max_depth=4)
+    assert frozen._calls.failed
+    traced, _ = _render(scene, False, seed=1, max_depth=4)
+    np.testing.assert_allclose(replayed, traced, **TOL)
+    assert traced.mean() > 0
