@@ -805,7 +805,7 @@ class Renderer:
             per_path[0] = max(per_path[0], -(-store.vertices.size() * 5 // (4 * n)))
             per_path[1] = max(per_path[1], -(-store.splats.size() * 5 // (4 * n)))
             # The larger pools replace these, not join them (Veach's room: 1.5x the peak).
-            store = light_rays = None
+            store = light_rays = buffers = None
             dr.flush_malloc_cache()
             self._outgrown = True       # the passes after this one: planned anew
             light.light_sampler = self._sampler(index, 1, n, spp)
