@@ -175,17 +175,26 @@ class MomentSamples:
 
     SLOTS = 32
 
-    def __init__(self, lanes: int, every: int = 1, shadow: bool = False, record: bool = True):
+    def __init__(self, lanes: int, every: int = 1, shadow: bool = False, record: bool = True,
+                 allocate: bool = True):
         """``shadow``: the pass's merges are for its moments only (mis.Weights): a
         contribution of the image then counts as the estimator with merging would
         have weighted it, value x (1 - u_vm) (the balance heuristic's), and
         ``correction`` sums per lane what turns the lane's value into that estimator's
         (-u_vm x value, and the merges): render.py adds it where merging is chosen.
         ``record``: False for a shadow pass that only needs its correction (the vcm
-        pilot's first pass merged for it before; no pass does since, Pilot.budget)."""
+        pilot's first pass merged for it before; no pass does since, Pilot.budget).
+        ``allocate``: False leaves the buffers to ``allocate``, which a frozen camera
+        walk calls inside its recording (render.py; see vertices.LightVertexStore)."""
         self.lanes, self.every, self.shadow, self.record = lanes, every, shadow, record
-        self.correction = dr.zeros(mi.Spectrum, lanes) if shadow else None
-        if not record:
+        self.correction = self.items = self.count = self.base = self._every = None
+        if allocate:
+            self.allocate()
+
+    def allocate(self) -> None:
+        lanes, every = self.lanes, self.every
+        self.correction = dr.zeros(mi.Spectrum, lanes) if self.shadow else None
+        if not self.record:
             return
         # Zeroed by a memset, which the pilot's timer does not count: written first by
         # the timed camera walk, the fresh pages' faults were charged to connections,
@@ -199,6 +208,13 @@ class MomentSamples:
         self.base = dr.select(lane % self._every == 0, lane // self._every * self.SLOTS,
                               self.NOT_RECORDED)
         dr.make_opaque(self.items, self.count, self.base)
+
+    def buffers(self) -> tuple:
+        """The arrays the camera walk writes, for ``adopt`` (a frozen walk's outputs)."""
+        return self.correction, self.items, self.count, self.base, self._every
+
+    def adopt(self, buffers: tuple) -> None:
+        self.correction, self.items, self.count, self.base, self._every = buffers
 
     NOT_RECORDED = 0xFFFFFFFF
 

@@ -40,7 +40,7 @@ from .units import UnitCosts
 from .budgets import BDPT, PATH_TRACING, Budget, fixed_budget
 from .optimizer import MIN_SPP, QUERY_STEPS, MomentSample, MomentSamples, Pilot, luminance
 from .strategies import MERGE_LAYER, StrategyImages, StrategySet
-from . import backend, merge
+from . import backend, frozen, merge
 from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore, gather
 from .walk import path_tracer_walk, trace_camera_subpaths, trace_light_subpaths
 
@@ -88,6 +88,7 @@ class PassContext:
     mis_rates: tuple = (1.0, 1.0, 0.0)  # N_L / N_C, kappa and eta of the MIS weights
     grid: merge.HashGrid | None = None  # merging: the pass's light vertices (merge.py)
     merge_radius: float = 0.0          # merging: this pass's radius r_i
+    scene_values: tuple = ()           # frozen.scene_values: keys the walks' recordings
 
     def light_subpath(self, lane):
         """The light subpath camera lane ``lane`` connects to (i mod N_L)."""
@@ -225,6 +226,25 @@ def _splat_moments(ctx, store):
     return samples, None, stride / r ** 2
 
 
+def _light_walk(ctx, store):
+    """Stage 2's walk with its pools made inside it: frozen.py records it, and a buffer
+    made before a recording is one of its inputs, which a replay copies before its
+    first scatter (copy on write: 66 copies of the pilot's pools, 6 MB at 64x64).
+    Returns the rays per lane and the pools (LightVertexStore.adopt)."""
+    store.allocate()
+    rays = trace_light_subpaths(ctx, store)
+    return rays, store.buffers()
+
+
+def _camera_walk(ctx, rays, store):
+    """Stage 3's walk with the moment samples' buffers made inside it (``_light_walk``);
+    returns its final state and those buffers (optimizer.MomentSamples.adopt)."""
+    if ctx.moments is not None:
+        ctx.moments.allocate()
+    cam = trace_camera_subpaths(ctx, rays, store)
+    return cam, None if ctx.moments is None else ctx.moments.buffers()
+
+
 def plan_passes(spp: int, pixels: int, max_lanes: int, explicit: int, accepted) -> list:
     """Split spp x pixels into passes (pixel offset, pixels, spp) of at most
     ``max_lanes`` lanes.  Automatic passes are equal in size: Dr.Jit keeps freed
@@ -275,6 +295,7 @@ class Renderer:
         support.warn_of_light_tracing_paths(scene, self.settings)
         self.emitters = Emitters(scene)
         self.media = Media(scene, self.sensor)
+        self._scene_values = frozen.scene_values(scene)
         fixed = fixed_budget(self.settings)
         if strategy_images and fixed is None:   # the layers show every BDPT strategy
             fixed = BDPT
@@ -512,7 +533,11 @@ class Renderer:
         start = time.perf_counter()
         history = dr.flag(dr.JitFlag.KernelHistory) or self.timings is not None
         with dr.suspend_grad(), dr.scoped_set_flag(dr.JitFlag.KernelHistory, history):
-            self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
+            try:
+                self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
+            except frozen.RecordingFailed:
+                # Nothing reached the film before the walks: the pass again, traced.
+                self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
             if self._outgrown:
                 self._outgrown = False
                 self._replan(index)
@@ -585,9 +610,10 @@ class Renderer:
             light_count=n_light, pick_offset=dr.opaque(mi.Float, _unit(self.seed, index)),
             noise_key=dr.opaque(mi.UInt32, _mix_seed(self.seed, index, 2) & 0xFFFFFFFF),
             images=images, pixel=rays.pixel,
-            moments=MomentSamples(lanes, every, weights.shadow, record) if moments else None,
+            moments=(MomentSamples(lanes, every, weights.shadow, record, allocate=False)
+                     if moments else None),
             mis_rates=rates,
-            merge_radius=radius)
+            merge_radius=radius, scene_values=self._scene_values)
 
     def _render_pass(self, index, pixel_offset, n_pixels, spp, lanes):
         if (self._path_tracer is not None and index >= Pilot.PASSES
@@ -612,7 +638,7 @@ class Renderer:
         grid_seconds = timer.lap()
 
         # Stage 3: camera subpaths, with every strategy t >= 2.
-        cam = trace_camera_subpaths(ctx, rays, store)
+        cam = self._camera_walk(ctx, rays, store)
         # Every output the pass reads, in the walk's one kernel: an output evaluated
         # later would run the whole walk again (the pilot's slot counts did: 23 ms).
         dr.eval(cam.radiance, cam.hit, cam.rays, cam.slot, cam.specular_z1)
@@ -769,17 +795,17 @@ class Renderer:
         per_path = self._capacity
         while True:
             store = LightVertexStore(n, n * per_path[0] if ctx.strategies.stores_vertices else 1,
-                                     n * per_path[1], zeroed=self.timings is not None)
-            light_rays = trace_light_subpaths(light, store)
-            dr.eval(light_rays, store.vertices.items, store.splats.items, store.first,
-                    *([] if ctx.moments is None or not ctx.moments.record
-                      else [ctx.moments.items, ctx.moments.count]))
+                                     n * per_path[1], zeroed=self.timings is not None,
+                                     allocate=False)
+            light_rays, buffers = frozen.call(_light_walk, light, store)
+            store.adopt(buffers)
+            dr.eval(light_rays, store.vertices.items, store.splats.items, store.first)
             if not store.overflowed():
                 break
             per_path[0] = max(per_path[0], -(-store.vertices.size() * 5 // (4 * n)))
             per_path[1] = max(per_path[1], -(-store.splats.size() * 5 // (4 * n)))
             # The larger pools replace these, not join them (Veach's room: 1.5x the peak).
-            store = light_rays = None
+            store = light_rays = buffers = None
             dr.flush_malloc_cache()
             self._outgrown = True       # the passes after this one: planned anew
             light.light_sampler = self._sampler(index, 1, n, spp)
@@ -792,6 +818,20 @@ class Renderer:
         if ctx.budget.caches:
             store.order = store.ordered()
         return store, light_rays
+
+    @staticmethod
+    def _camera_walk(ctx, rays, store):
+        """Stage 3's walk, replayed where recorded (frozen.py), the moment samples'
+        buffers made inside it (see ``_light_walk``).  With strategy images it is
+        traced: their layers, lanes x strategies, would be copied by every replay."""
+        if ctx.images is not None:
+            if ctx.moments is not None:
+                ctx.moments.allocate()
+            return trace_camera_subpaths(ctx, rays, store)
+        cam, buffers = frozen.call(_camera_walk, ctx, rays, store)
+        if ctx.moments is not None:
+            ctx.moments.adopt(buffers)
+        return cam
 
     # -- results -------------------------------------------------------------------
     def load_raw(self, raw: dict | None, passes: int, time: float = 0.0, rays: int = 0) -> None:

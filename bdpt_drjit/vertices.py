@@ -87,12 +87,22 @@ def gather(source, index, active=True):
 class Pool:
     """An append-only buffer of records of one type, with a counter."""
 
-    def __init__(self, kind, capacity: int, zeroed: bool = False):
-        self.capacity = int(capacity)
-        self.items = empty(kind, self.capacity, zeroed)
+    # frozen.py: the count read after a walk is no input of the walks (a read
+    # inside a recording fails), so it does not key their recordings.
+    FROZEN_IGNORE = ("_size",)
+
+    def __init__(self, kind, capacity: int, zeroed: bool = False, allocate: bool = True):
+        """``allocate``: False leaves the buffers to ``allocate`` (LightVertexStore)."""
+        self.kind, self.capacity, self.zeroed = kind, int(capacity), zeroed
+        self.items = self.count = self._capacity = None
+        self._size = None               # the count, once read (a read is a sync)
+        if allocate:
+            self.allocate()
+
+    def allocate(self) -> None:
+        self.items = empty(self.kind, self.capacity, self.zeroed)
         self.count = dr.zeros(mi.UInt32, 1)
         self._capacity = dr.opaque(mi.UInt32, self.capacity)
-        self._size = None               # the count, once read (a read is a sync)
 
     def append(self, value, active) -> mi.UInt32:
         """Append ``value`` where ``active``; returns each lane's index, NONE where
@@ -130,12 +140,34 @@ class LightVertexStore:
     ceiling, 128x128, light_paths=0.25: 466 against 473 ms)."""
 
     def __init__(self, lanes: int, vertex_capacity: int, splat_capacity: int,
-                 zeroed: bool = False):
-        self.vertices = Pool(LightVertex, max(vertex_capacity, 1), zeroed)
-        self.splats = Pool(Splat, max(splat_capacity, 1), zeroed)
-        self.first = dr.full(mi.UInt32, NONE, lanes)
+                 zeroed: bool = False, allocate: bool = True):
+        """``allocate``: False leaves the buffers to ``allocate``, which a frozen walk
+        calls inside its recording (render.py): buffers made before it are inputs of
+        the recording, which its scatters copy first (copy on write)."""
+        self.lanes = lanes
+        self.vertices = Pool(LightVertex, max(vertex_capacity, 1), zeroed, allocate)
+        self.splats = Pool(Splat, max(splat_capacity, 1), zeroed, allocate)
+        self.first = None
         self.order = None                # vertex caches: the pool in a fixed order
+        if allocate:
+            self.allocate()
+
+    def allocate(self) -> None:
+        for pool in (self.vertices, self.splats):
+            if pool.items is None:
+                pool.allocate()
+        self.first = dr.full(mi.UInt32, NONE, self.lanes)
         dr.make_opaque(self.vertices.items, self.splats.items, self.first)
+
+    def buffers(self) -> tuple:
+        """The arrays a walk writes, for ``adopt`` (a frozen walk's outputs)."""
+        return tuple((p.items, p.count, p._capacity) for p in (self.vertices, self.splats)) + (
+            self.first,)
+
+    def adopt(self, buffers: tuple) -> None:
+        (self.vertices.items, self.vertices.count, self.vertices._capacity), \
+            (self.splats.items, self.splats.count, self.splats._capacity), self.first = buffers
+        self.vertices._size = self.splats._size = None
 
     def add_vertex(self, vertex: LightVertex, lane, prev, active) -> mi.UInt32:
         """Append y_i of ``lane`` after its stored vertex ``prev`` (NONE: the first)."""

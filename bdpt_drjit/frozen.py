@@ -1,0 +1,220 @@
+"""Frozen walks: a walk's kernel recorded once (``dr.freeze``) and replayed by later
+passes whose Python side is the same, without tracing it again.
+
+Tracing a walk in Python (Mitsuba's virtual calls over the scene's BSDFs and shapes,
+the MIS chains) and assembling its kernel cost 5-10 ms a pass whatever its size: on a
+64x64 film that is most of the pilot pass's time (its kernels run 3 ms).
+
+What a walk reads lives in plain Python objects (the pass context's emitters, MIS
+weights, media, camera) that ``dr.freeze`` cannot traverse.  So the recorded function
+takes no arguments of its own: ``_inputs`` walks the objects a call hands it and
+splits them into
+
+* the key: every Python value the tracing may branch on or bake into the kernel
+  (ints, floats, strings, flags, the types and widths of arrays, the identity of each
+  Mitsuba object and of the scene) -- a call whose key differs records anew;
+* the state: every Dr.Jit array and Mitsuba object they hold, which ``dr.freeze``
+  takes as the recording's inputs (``state_fn``) and replaces by the new call's.
+
+A class may name attributes the walks never read in ``FROZEN_IGNORE`` (a value read
+back from the device: a read inside a recording fails), so that they key nothing.
+
+A replay runs the kernels recorded from the same Python code on the new arrays, so it
+gives the image the traced walk gives (tests/test_frozen.py).  Host reads are not
+allowed inside a recording: the walks have none (pool sizes are read after them).
+"""
+from __future__ import annotations
+
+import dataclasses
+import enum
+import hashlib
+import types
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+# Recordings kept, of all walks together (LRU): a render's kinds of pass (the pilot,
+# the budget's passes, its moment passes, a pass with outgrown pools) take two each
+# (the Cornell box at 128x128: 7); past the limit each render would record again.
+LIMIT = 16
+
+_SCALARS = (int, float, str, bool, bytes, type(None), enum.Enum, complex)
+
+
+def _inputs(obj, key: list, state: list, seen: dict) -> None:
+    """Append ``obj``'s Python values to ``key`` and its arrays and Mitsuba objects to
+    ``state``, depth first, in a fixed order."""
+    if isinstance(obj, _SCALARS):
+        key.append(obj)
+        return
+    if isinstance(obj, type):
+        key.append(("type", obj.__module__, obj.__qualname__))
+        return
+    if dr.is_array_v(obj):
+        if not dr.is_jit_v(obj):            # a host value: baked into the kernels
+            key.append(("scalar array", type(obj).__name__, repr(obj)))
+            return
+        key.append(("array", type(obj).__name__, dr.width(obj)))
+        state.append(obj)
+        return
+    struct = getattr(type(obj), "DRJIT_STRUCT", None)
+    if struct is not None:                  # Mitsuba's records (rays, interactions)
+        key.append(("struct", type(obj).__qualname__))
+        for name in struct:
+            key.append(name)
+            _inputs(getattr(obj, name), key, state, seen)
+        return
+    if isinstance(obj, mi.Object):          # the scene, its sensor, samplers, plugins
+        # A pass's samplers are clones, new each pass: their type and counts are what
+        # the tracing sees; every other object, the scene's own, by identity.
+        ident = _sampler_key(obj) if isinstance(obj, mi.Sampler) else id(obj)
+        key.append(("mitsuba", type(obj).__name__, ident))
+        if id(obj) not in seen:
+            seen[id(obj)] = len(seen)
+            state.append(obj)
+        return
+    if id(obj) in seen:                    # shared or cyclic: its position, once
+        key.append(("seen", seen[id(obj)]))
+        return
+    seen[id(obj)] = len(seen)
+    if isinstance(obj, (list, tuple)):
+        key.append((type(obj).__name__, len(obj)))
+        for item in obj:
+            _inputs(item, key, state, seen)
+    elif isinstance(obj, (set, frozenset)):
+        key.append(("set", tuple(sorted(repr(v) for v in obj))))
+    elif isinstance(obj, dict):
+        key.append(("dict", tuple(repr(k) for k in obj)))
+        for item in obj.values():
+            _inputs(item, key, state, seen)
+    elif isinstance(obj, np.ndarray):
+        key.append(("numpy", obj.dtype.str, obj.shape, obj.tobytes()))
+    elif isinstance(obj, (types.FunctionType, types.MethodType, types.BuiltinFunctionType)):
+        _function(obj, key, state, seen)
+    elif dataclasses.is_dataclass(obj) or hasattr(obj, "__dict__"):
+        key.append(("object", type(obj).__module__, type(obj).__qualname__))
+        fields = ([f.name for f in dataclasses.fields(obj)] if dataclasses.is_dataclass(obj)
+                  else sorted(vars(obj)))
+        ignore = getattr(type(obj), "FROZEN_IGNORE", ())
+        for name in (f for f in fields if f not in ignore):
+            key.append(name)
+            _inputs(getattr(obj, name), key, state, seen)
+    else:                                  # unknown: this very object only
+        key.append(("other", type(obj).__qualname__, id(obj)))
+
+
+def _function(fn, key: list, state: list, seen: dict) -> None:
+    """A callable: its code, and what its closure and bound object hold."""
+    if isinstance(fn, types.MethodType):
+        key.append(("method", fn.__func__.__qualname__))
+        _inputs(fn.__self__, key, state, seen)
+        fn = fn.__func__
+    code = getattr(fn, "__code__", None)
+    key.append(("function", getattr(fn, "__module__", None), getattr(fn, "__qualname__", None),
+                None if code is None else id(code)))
+    for cell in getattr(fn, "__closure__", None) or ():
+        _inputs(cell.cell_contents, key, state, seen)
+    if getattr(fn, "__defaults__", None):
+        _inputs(fn.__defaults__, key, state, seen)
+
+
+def scene_values(scene) -> tuple:
+    """The scene's parameters that are Python values, not arrays (a dielectric's eta,
+    a sensor's clip planes): Mitsuba bakes them into the kernels that call its plugins,
+    so a render puts them in its passes' context (render.PassContext), whose values key
+    the recordings: an eta changed between renders (``mi.traverse``) then records anew
+    instead of replaying the old one."""
+    params = mi.traverse(scene)
+    return tuple((name, repr(params[name])) for name in params.keys()
+                 if not dr.is_jit_v(params[name]))
+
+
+def _sampler_key(sampler) -> tuple:
+    """What a sampler's calls bake into kernels and its traversal does not give."""
+    return (sampler.class_name(), sampler.sample_count(), sampler.wavefront_size())
+
+
+class _Calls:
+    """The calls being run (function, state, arguments), and the Mitsuba objects whose
+    identity keys the recordings.  ``dr.freeze`` also traverses the globals its
+    function reads: held in a plain object, which it hashes by identity, they stay out
+    of the recording's key."""
+
+    def __init__(self):
+        self.stack = []
+        self.alive = {}         # id -> object: kept alive while recordings name it
+        self.failed = set()     # digests whose recording failed: traced from then on
+
+
+class RecordingFailed(RuntimeError):
+    """``dr.freeze`` could not record a walk (a nested virtual call, such as an emitter
+    whose radiance is a texture, in Dr.Jit 1.5).  The walk ran, but its inputs (the
+    samplers) have moved on: the caller runs its pass again, and this key is traced
+    from then on."""
+
+
+_calls = _Calls()
+
+
+def _state(key):
+    return _calls.stack[-1][1]
+
+
+@dr.freeze(state_fn=_state, limit=LIMIT, warn_after=10 ** 6, auto_opaque=False,
+           backend=dr.JitBackend.LLVM)
+def _frozen(key):
+    fn, _, args = _calls.stack[-1]
+    return fn(*args)
+
+
+ENABLED = True
+
+
+def call(fn, *args):
+    """``fn(*args)``, recorded on the first call of its key and replayed after (LLVM
+    variants; CUDA ones trace every call: untested there).  ``fn`` must read nothing
+    from the device and change no Python state that a later step reads: only its
+    return value and the arrays it scatters to survive a replay.
+
+    Every input is made opaque (``auto_opaque=False``): a literal that changed from
+    one call to the next would otherwise record the kernels again with it opaque, so
+    that which kernels a pass runs would depend on the passes before it."""
+    if not ENABLED or not mi.variant().startswith("llvm"):
+        return fn(*args)
+    key, state, seen = [mi.variant()], [], {}
+    _inputs((fn, args), key, state, seen)
+    digest = _digest(key)
+    if digest in _calls.failed:
+        return fn(*args)
+    _keep_alive(state)
+    _calls.stack.append((fn, state, args))
+    try:
+        recorded = _frozen.n_recordings
+        return _frozen(digest)
+    except RuntimeError as error:
+        if _frozen.n_recordings == recorded:   # not a recording's failure
+            raise
+        _calls.failed.add(digest)
+        raise RecordingFailed(str(error)) from error
+    finally:
+        _calls.stack.pop()
+
+
+def _digest(key: list) -> str:
+    """The key as one string.  ``dr.freeze`` 1.5 told a tuple of Python values from
+    another by a hash that swapped values passed: a walk of technique (3, 2) replayed
+    the recording of (2, 3), and rendered black (tests/test_frozen.py)."""
+    return hashlib.blake2b(repr(key).encode(), digest_size=16).hexdigest()
+
+
+def _keep_alive(state: list) -> None:
+    """Keys name Mitsuba objects by id; an id is reused once its object is freed.  The
+    recordings therefore hold the objects they name alive, and are dropped when a call
+    names another scene (a render of another scene starts)."""
+    objects = {id(o): o for o in state if isinstance(o, mi.Object)
+               and not isinstance(o, mi.Sampler)}
+    if any(isinstance(o, mi.Scene) and i not in _calls.alive for i, o in objects.items()):
+        _frozen.clear()
+        _calls.alive, _calls.failed = {}, set()
+    _calls.alive.update(objects)
