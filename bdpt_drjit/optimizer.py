@@ -575,6 +575,11 @@ def _blur(image: np.ndarray, radius: int = BLUR) -> np.ndarray:
     return (c[k:k + h, k:k + w] - c[:h, k:k + w] - c[k:k + h, :w] + c[:h, :w]) / (k * k)
 
 
+# A vcm render's later moment passes record about this many times the pilot's camera
+# lanes (Pilot.moment_every; 32 slots of 28 bytes each: 59 MB at 8 x 8192 lanes).
+MOMENT_PILOTS = 8
+
+
 class Pilot:
     """The pilot pass of an "auto" render (module docstring) and its decision."""
 
@@ -599,6 +604,25 @@ class Pilot:
         the whole film's estimate, Cornell box 256x256, 7 seeds; on half of it
         1.02-1.06x.)"""
         return 2 if spp == 1 and pixels // 2 >= _pilot_lanes() else 1
+
+    @staticmethod
+    def moment_every(lanes: int, spp: int, merging: bool = False) -> int:
+        """A later moment pass records one camera lane in this many: the first sample
+        of every other pixel, the pilot's memory.  In a vcm render (``merging``) about
+        MOMENT_PILOTS times the pilot's lanes, all of a small merging pass: a candidate
+        without merging reads a path that merges sample almost alone (u_vm near
+        MERGE_ONLY) from its rare BDPT samples, a heavy-tailed estimate whose typical
+        value is far short of its mean.  On SmallVCM's large glass sphere the caustic
+        seen through the glass came in 0-3 of a pass's 8192 recorded samples; a pass
+        that did not merge put the candidates without merging at summed moments of
+        0.8-1.1 where the passes that merged (and renders) put them at 2.5-5, and the
+        re-decision kept merging off.  SeeSharp's iterative updates read every sample
+        of the render (Grittmann et al. 2022, section 6); the memory of MomentSamples'
+        slots caps ours."""
+        every = 2 * spp
+        if merging:
+            every = min(every, max(1, lanes // (MOMENT_PILOTS * _pilot_lanes())))
+        return every
 
     def __init__(self, spectral: bool, light_image: bool = True,
                  units: UnitCosts | None = None, merging: bool = False, spp: int = 0):
