@@ -575,8 +575,8 @@ def _blur(image: np.ndarray, radius: int = BLUR) -> np.ndarray:
     return (c[k:k + h, k:k + w] - c[:h, k:k + w] - c[k:k + h, :w] + c[:h, :w]) / (k * k)
 
 
-# A vcm render's later moment passes record about this many times the pilot's camera
-# lanes (Pilot.moment_every; 32 slots of 28 bytes each: 59 MB at 8 x 8192 lanes).
+# A vcm render's later moment passes without merging record about this many times the
+# pilot's camera lanes (Pilot.moment_every; 32 slots of 28 bytes: 59 MB at 8 x 8192).
 MOMENT_PILOTS = 8
 
 
@@ -606,21 +606,23 @@ class Pilot:
         return 2 if spp == 1 and pixels // 2 >= _pilot_lanes() else 1
 
     @staticmethod
-    def moment_every(lanes: int, spp: int, merging: bool = False) -> int:
+    def moment_every(lanes: int, spp: int, unmerged_vcm: bool = False) -> int:
         """A later moment pass records one camera lane in this many: the first sample
-        of every other pixel, the pilot's memory.  In a vcm render (``merging``) about
-        MOMENT_PILOTS times the pilot's lanes, all of a small merging pass: a candidate
-        without merging reads a path that merges sample almost alone (u_vm near
-        MERGE_ONLY) from its rare BDPT samples, a heavy-tailed estimate whose typical
-        value is far short of its mean.  On SmallVCM's large glass sphere the caustic
-        seen through the glass came in 0-3 of a pass's 8192 recorded samples; a pass
-        that did not merge put the candidates without merging at summed moments of
-        0.8-1.1 where the passes that merged (and renders) put them at 2.5-5, and the
-        re-decision kept merging off.  SeeSharp's iterative updates read every sample
-        of the render (Grittmann et al. 2022, section 6); the memory of MomentSamples'
-        slots caps ours."""
+        of every other pixel, the pilot's memory.  A vcm render's pass of a budget
+        without merging (``unmerged_vcm``) records about MOMENT_PILOTS times the
+        pilot's lanes.  There the candidates without merging read the paths that
+        merges sample almost alone from rare BDPT samples, a heavy-tailed estimate
+        whose typical value is far short of its mean, and such a budget renders in
+        large passes: its one moment pass is its one chance to turn merging on.  On
+        SmallVCM's large glass sphere the caustic seen through the glass came in 0-3
+        of 8192 recorded samples; that pass put the candidates without merging at
+        summed moments of 0.8-1.1 where passes that merged put them at 2.5-5, and
+        merging stayed off.  SeeSharp's iterative updates read every sample of the
+        render (Grittmann et al. 2022); MomentSamples' slots cap ours.  A merging
+        budget's passes are small, three of them re-decide, and recording all their
+        lanes cost the SDS scene 9% of its render for the same decisions."""
         every = 2 * spp
-        if merging:
+        if unmerged_vcm:
             every = min(every, max(1, lanes // (MOMENT_PILOTS * _pilot_lanes())))
         return every
 
