@@ -25,8 +25,9 @@ a firefly pixel left out (outliers), is the candidate's relative error.
 Re-decisions.  The first pass that ends at or after 4, 16 and 64 times the pilot's
 spp (render.Renderer._plan_rounds) is a moment pass of the budget being rendered,
 with the balance heuristic at that budget's rates (r_B, kappa_B), its camera side
-recorded on one lane in 2 x spp (the pilot's memory) and its light side on one light
-subpath in 2 x spp x r_B (render._splat_moments).  Its shares are of P_B, so
+recorded on one lane in 2 x spp (the pilot's memory; in a vcm render without merging
+about 8x the pilot's lanes: Pilot.moment_every) and its light side on one light
+subpath in every x r_B (render._splat_moments).  Its shares are of P_B, so
 P_c / P_B = u_pt + (r_c / r_B) u_lt + (kappa_c / kappa_B) u_con: that gives every
 candidate whose strategy groups have a positive rate in the budget (``covers``), and a
 light image splat counts as value / r_B per camera sample (N_C / N_L times it).  Each
@@ -576,7 +577,9 @@ def _blur(image: np.ndarray, radius: int = BLUR) -> np.ndarray:
 
 
 # A vcm render's later moment passes without merging record about this many times the
-# pilot's camera lanes (Pilot.moment_every; 32 slots of 28 bytes: 59 MB at 8 x 8192).
+# pilot's camera lanes (Pilot.moment_every; 32 slots of 28 bytes: 59 MB at 8 x 8192
+# lanes on a CPU, 0.9 GB at 8 x 2^17 on a GPU, where a pass of a large film already
+# records pixels / 2).
 MOMENT_PILOTS = 8
 
 
