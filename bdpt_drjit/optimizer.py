@@ -25,8 +25,9 @@ a firefly pixel left out (outliers), is the candidate's relative error.
 Re-decisions.  The first pass that ends at or after 4, 16 and 64 times the pilot's
 spp (render.Renderer._plan_rounds) is a moment pass of the budget being rendered,
 with the balance heuristic at that budget's rates (r_B, kappa_B), its camera side
-recorded on one lane in 2 x spp (the pilot's memory) and its light side on one light
-subpath in 2 x spp x r_B (render._splat_moments).  Its shares are of P_B, so
+recorded on one lane in 2 x spp (the pilot's memory; in a vcm render without merging
+about 8x the pilot's lanes: Pilot.moment_every) and its light side on one light
+subpath in every x r_B (render._splat_moments).  Its shares are of P_B, so
 P_c / P_B = u_pt + (r_c / r_B) u_lt + (kappa_c / kappa_B) u_con: that gives every
 candidate whose strategy groups have a positive rate in the budget (``covers``), and a
 light image splat counts as value / r_B per camera sample (N_C / N_L times it).  Each
@@ -591,6 +592,13 @@ def _blur(image: np.ndarray, radius: int = BLUR) -> np.ndarray:
     return (c[k:k + h, k:k + w] - c[:h, k:k + w] - c[k:k + h, :w] + c[:h, :w]) / (k * k)
 
 
+# A vcm render's later moment passes without merging record about this many times the
+# pilot's camera lanes (Pilot.moment_every; 32 slots of 28 bytes: 59 MB at 8 x 8192
+# lanes on a CPU, 0.9 GB at 8 x 2^17 on a GPU, where a pass of a large film already
+# records pixels / 2).
+MOMENT_PILOTS = 8
+
+
 class Pilot:
     """The pilot pass of an "auto" render (module docstring) and its decision."""
 
@@ -615,6 +623,27 @@ class Pilot:
         the whole film's estimate, Cornell box 256x256, 7 seeds; on half of it
         1.02-1.06x.)"""
         return 2 if spp == 1 and pixels // 2 >= _pilot_lanes() else 1
+
+    @staticmethod
+    def moment_every(lanes: int, spp: int, unmerged_vcm: bool = False) -> int:
+        """A later moment pass records one camera lane in this many: the first sample
+        of every other pixel, the pilot's memory.  A vcm render's pass of a budget
+        without merging (``unmerged_vcm``) records about MOMENT_PILOTS times the
+        pilot's lanes.  There the candidates without merging read the paths that
+        merges sample almost alone from rare BDPT samples, a heavy-tailed estimate
+        whose typical value is far short of its mean, and such a budget renders in
+        large passes: its one moment pass is its one chance to turn merging on.  On
+        SmallVCM's large glass sphere the caustic seen through the glass came in 0-3
+        of 8192 recorded samples; that pass put the candidates without merging at
+        summed moments of 0.8-1.1 where passes that merged put them at 2.5-5, and
+        merging stayed off.  SeeSharp's iterative updates read every sample of the
+        render (Grittmann et al. 2022); MomentSamples' slots cap ours.  A merging
+        budget's passes are small, three of them re-decide, and recording all their
+        lanes cost the SDS scene 9% of its render for the same decisions."""
+        every = 2 * spp
+        if unmerged_vcm:
+            every = min(every, max(1, lanes // (MOMENT_PILOTS * _pilot_lanes())))
+        return every
 
     def __init__(self, spectral: bool, light_image: bool = True,
                  units: UnitCosts | None = None, merging: bool = False, spp: int = 0):

@@ -599,7 +599,8 @@ class Renderer:
             eta = math.pi * radius * radius * n_light
             weights.set_merging(eta)
         rates += (eta,)
-        every = 1 if index < Pilot.PASSES else 2 * spp    # a later moment pass: see above
+        every = 1 if index < Pilot.PASSES else Pilot.moment_every(
+            lanes, spp, self.settings.merging and not budget.merges)
         images = StrategyImages(self.strategies, lanes) if self.strategy_images else None
         return PassContext(
             scene=self.scene, camera=self.camera, settings=self.settings, budget=budget,

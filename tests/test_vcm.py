@@ -443,6 +443,46 @@ def test_a_re_decision_without_merging_still_weighs_merging():
     assert pilot.moments[decision.budget] == (16.0, 16.0)          # the pilot's alone
 
 
+@pytest.mark.auto_budget
+def test_a_vcm_moment_pass_records_enough_of_what_merging_sees(monkeypatch):
+    """A later moment pass of a vcm render whose budget does not merge records about
+    MOMENT_PILOTS times the pilot's camera lanes, a bdpt render's or a merging
+    budget's one lane in 2 x spp (the pilot's memory).  Before, it recorded those:
+    on SmallVCM's large glass sphere a budget without merging renders its passes of
+    74 spp after the pilot, re-decides once, and that pass's 8192 samples held 0-3 of
+    the caustic seen through the glass; merging stayed off in 3 of 12 seeds."""
+    import importlib
+    from bdpt_drjit.optimizer import MOMENT_PILOTS, Pilot, _pilot_lanes
+    render = importlib.import_module("bdpt_drjit.render")      # (bdpt_drjit.render: the function)
+    pixels, spp = 128 * 128, 74
+    lanes = pixels * spp
+    assert lanes // Pilot.moment_every(lanes, spp) == pixels // 2
+    recorded = lanes // Pilot.moment_every(lanes, spp, unmerged_vcm=True)
+    assert MOMENT_PILOTS * _pilot_lanes() <= recorded < 2 * MOMENT_PILOTS * _pilot_lanes()
+
+    everies = []        # the passes of a render, as render.py sizes their records
+
+    class Spy(render.MomentSamples):
+        def __init__(self, lanes, every=1, *args, **kwargs):
+            everies.append((lanes, every))
+            super().__init__(lanes, every, *args, **kwargs)
+
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=16, resy=16)
+    monkeypatch.setattr(render, "MomentSamples", Spy)
+    r = render.Renderer(scene, spp=128, seed=1, max_depth=4, merging=True, samples_per_pass=4,
+                        unit_costs=UnitCosts())
+    r.pilot.candidates = [c for c in r.pilot.candidates if c.light_ratio > 0]   # re-decides
+    budgets = []
+    while not r.done:
+        budgets.append(r.budget)
+        r.run_pass()
+    assert r.pilot.rounds and len(everies) == 1 + len(r.pilot.rounds)
+    for (lanes, every), i in zip(everies[1:], sorted(r._moment_passes)):
+        _, n, spp = r.plan[i]
+        assert lanes == n * spp
+        assert every == Pilot.moment_every(lanes, spp, not budgets[i].merges)
+
+
 def test_merging_is_priced_by_the_passes_a_merging_budget_renders():
     """After a choice without merging the plan's passes are larger (their radius need
     not shrink), but merging's eta, and the grid items its queries visit, are those
