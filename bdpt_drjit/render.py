@@ -226,7 +226,7 @@ def _splat_moments(ctx, store):
     return samples, None, stride / r ** 2
 
 
-def _light_walk(ctx, store):
+def _recorded_light_walk(ctx, store):
     """Stage 2's walk with its pools made inside it: frozen.py records it, and a buffer
     made before a recording is one of its inputs, which a replay copies before its
     first scatter (copy on write: 66 copies of the pilot's pools, 6 MB at 64x64).
@@ -236,9 +236,10 @@ def _light_walk(ctx, store):
     return rays, store.buffers()
 
 
-def _camera_walk(ctx, rays, store):
-    """Stage 3's walk with the moment samples' buffers made inside it (``_light_walk``);
-    returns its final state and those buffers (optimizer.MomentSamples.adopt)."""
+def _recorded_camera_walk(ctx, rays, store):
+    """Stage 3's walk with the moment samples' buffers made inside it (as
+    ``_recorded_light_walk``); returns its final state and those buffers
+    (optimizer.MomentSamples.adopt)."""
     if ctx.moments is not None:
         ctx.moments.allocate()
     cam = trace_camera_subpaths(ctx, rays, store)
@@ -798,7 +799,7 @@ class Renderer:
             store = LightVertexStore(n, n * per_path[0] if ctx.strategies.stores_vertices else 1,
                                      n * per_path[1], zeroed=self.timings is not None,
                                      allocate=False)
-            light_rays, buffers = frozen.call(_light_walk, light, store)
+            light_rays, buffers = frozen.call(_recorded_light_walk, light, store)
             store.adopt(buffers)
             dr.eval(light_rays, store.vertices.items, store.splats.items, store.first)
             if not store.overflowed():
@@ -823,13 +824,13 @@ class Renderer:
     @staticmethod
     def _camera_walk(ctx, rays, store):
         """Stage 3's walk, replayed where recorded (frozen.py), the moment samples'
-        buffers made inside it (see ``_light_walk``).  With strategy images it is
+        buffers made inside it (see ``_recorded_light_walk``).  With strategy images it is
         traced: their layers, lanes x strategies, would be copied by every replay."""
         if ctx.images is not None:
             if ctx.moments is not None:
                 ctx.moments.allocate()
             return trace_camera_subpaths(ctx, rays, store)
-        cam, buffers = frozen.call(_camera_walk, ctx, rays, store)
+        cam, buffers = frozen.call(_recorded_camera_walk, ctx, rays, store)
         if ctx.moments is not None:
             ctx.moments.adopt(buffers)
         return cam
