@@ -827,9 +827,7 @@ class Renderer:
         buffers made inside it (see ``_recorded_light_walk``).  With strategy images it is
         traced: their layers, lanes x strategies, would be copied by every replay."""
         if ctx.images is not None:
-            if ctx.moments is not None:
-                ctx.moments.allocate()
-            return trace_camera_subpaths(ctx, rays, store)
+            return _recorded_camera_walk(ctx, rays, store)[0]
         cam, buffers = frozen.call(_recorded_camera_walk, ctx, rays, store)
         if ctx.moments is not None:
             ctx.moments.adopt(buffers)
