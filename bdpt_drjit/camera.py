@@ -72,12 +72,13 @@ class CameraModel:
 
     light_image_possible = True      # can a light vertex be connected to z_0 (t = 1)?
 
-    def __init__(self, sensor: mi.Sensor, border: int = 0):
+    def __init__(self, sensor: mi.Sensor, border: int = 0, params=None):
         """``border``: pixels around the crop window that camera samples cover (a film
         that samples its filter border), where ``connect`` reaches the film too: every
-        strategy then samples the same film region, as the MIS weights assume."""
+        strategy then samples the same film region, as the MIS weights assume.
+        ``params``: the sensor's ``mi.traverse``, where the caller has it."""
         self.sensor = sensor
-        params = mi.traverse(sensor)
+        params = mi.traverse(sensor) if params is None else params
         self.to_world = mi.AffineTransform4f(params["to_world"])
         self.to_local = self.to_world.inverse()
         self.resolution = mi.Vector2f(mi.ScalarVector2f(sensor.film().crop_size()))
@@ -185,8 +186,8 @@ class Camera(CameraModel):
     """
 
     def __init__(self, sensor: mi.Sensor, border: int = 0):
-        super().__init__(sensor, border)
         params = mi.traverse(sensor)
+        super().__init__(sensor, border, params)
         film = sensor.film()
         size, crop = mi.ScalarVector2f(film.size()), mi.ScalarVector2f(film.crop_size())
         self.lens = sensor.class_name() == THIN_LENS

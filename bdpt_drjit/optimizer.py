@@ -177,7 +177,7 @@ class MomentSamples:
     SLOTS = 32
 
     def __init__(self, lanes: int, every: int = 1, shadow: bool = False, record: bool = True,
-                 allocate: bool = True):
+                 allocate: bool = True, zeroed: bool = False):
         """``shadow``: the pass's merges are for its moments only (mis.Weights): a
         contribution of the image then counts as the estimator with merging would
         have weighted it, value x (1 - u_vm) (the balance heuristic's), and
@@ -186,8 +186,10 @@ class MomentSamples:
         ``record``: False for a shadow pass that only needs its correction (the vcm
         pilot's first pass merged for it before; no pass does since, Pilot.budget).
         ``allocate``: False leaves the buffers to ``allocate``, which a frozen camera
-        walk calls inside its recording (render.py; see vertices.LightVertexStore)."""
+        walk calls inside its recording (render.py; see vertices.LightVertexStore).
+        ``zeroed``: the slots filled with zeros first (a timed pass's, below)."""
         self.lanes, self.every, self.shadow, self.record = lanes, every, shadow, record
+        self.zeroed = zeroed
         self.correction = self.items = self.count = self.base = self._every = None
         if allocate:
             self.allocate()
@@ -197,11 +199,13 @@ class MomentSamples:
         self.correction = dr.zeros(mi.Spectrum, lanes) if self.shadow else None
         if not self.record:
             return
-        # Zeroed by a memset, which the pilot's timer does not count: written first by
-        # the timed camera walk, the fresh pages' faults were charged to connections,
-        # 1.5-9x their cost (Veach's MIS scene 1.6-5.8e-7 s per sample against 0.65e-7;
-        # see vertices.LightVertexStore).  Only moment passes have this buffer.
-        self.items = empty(MomentSample, -(-lanes // every) * self.SLOTS, zeroed=True)
+        # Only the slots a lane used are read (``_camera_side``).  A timed pass
+        # (render.calibrate) zeroes them by a memset, which its timer does not count:
+        # written first by the timed camera walk, the fresh pages' faults were charged
+        # to connections, 1.5-9x their cost (Veach's MIS scene 1.6-5.8e-7 s per sample
+        # against 0.65e-7; see vertices.LightVertexStore).  Elsewhere the memset is
+        # only work: 7 launches, 0.3 ms of a 64x64 pilot pass's 2.4 ms of kernels.
+        self.items = empty(MomentSample, -(-lanes // every) * self.SLOTS, zeroed=self.zeroed)
         self.count = dr.zeros(mi.UInt32, lanes)           # slots used, per lane
         self._every = dr.opaque(mi.UInt32, every)
         # Each lane's first slot, or NOT_RECORDED (one gather per contribution).

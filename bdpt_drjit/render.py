@@ -88,7 +88,7 @@ class PassContext:
     mis_rates: tuple = (1.0, 1.0, 0.0)  # N_L / N_C, kappa and eta of the MIS weights
     grid: merge.HashGrid | None = None  # merging: the pass's light vertices (merge.py)
     merge_radius: float = 0.0          # merging: this pass's radius r_i
-    scene_values: tuple = ()           # frozen.scene_values: keys the walks' recordings
+    scene_values: tuple = ()           # support.SceneFacts.values: key the walks' recordings
 
     def light_subpath(self, lane):
         """The light subpath camera lane ``lane`` connects to (i mod N_L)."""
@@ -291,12 +291,14 @@ class Renderer:
         self.scene = scene
         self.settings = Settings.from_dict(settings)
         camera_stage.check_settings(self.camera, self.settings)
+        facts = support.facts(scene, self.sensor)
         # Refuses what bdpt would get wrong (media, unsupported plugins), warns of the rest.
-        support.check(scene, self.sensor)
+        support.check(scene, self.sensor, facts.verdicts)
         support.warn_of_light_tracing_paths(scene, self.settings)
         self.emitters = Emitters(scene)
         self.media = Media(scene, self.sensor)
-        self._scene_values = frozen.scene_values(scene)
+        self._scene_values = facts.values       # they key the frozen walks (frozen.py)
+        self._path_drops_light = facts.path_drops_light
         fixed = fixed_budget(self.settings)
         if strategy_images and fixed is None:   # the layers show every BDPT strategy
             fixed = BDPT
@@ -367,7 +369,7 @@ class Renderer:
         self._pilot_round = 0           # passes of the round the pilot opens (2 or 3)
         if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
             self._plan_pilot(max_lanes)
-            if not self.media.present and not support.mitsuba_path_drops_light(self.scene):
+            if not self.media.present and not self._path_drops_light:
                 # Where the pilot chooses path tracing, Mitsuba's path renders the rest
                 # (elsewhere this engine's camera walk does, with s <= 1).
                 self._path_tracer = mi.load_dict({
@@ -612,8 +614,8 @@ class Renderer:
             light_count=n_light, pick_offset=dr.opaque(mi.Float, _unit(self.seed, index)),
             noise_key=dr.opaque(mi.UInt32, _mix_seed(self.seed, index, 2) & 0xFFFFFFFF),
             images=images, pixel=rays.pixel,
-            moments=(MomentSamples(lanes, every, weights.shadow, record, allocate=False)
-                     if moments else None),
+            moments=(MomentSamples(lanes, every, weights.shadow, record, allocate=False,
+                                   zeroed=self.timings is not None) if moments else None),
             mis_rates=rates,
             merge_radius=radius, scene_values=self._scene_values)
 

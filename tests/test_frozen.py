@@ -95,7 +95,7 @@ def test_swapped_values_record_anew(freezing):
 
 def test_a_changed_scalar_parameter_records_anew(freezing):
     """A dielectric's eta is a Python float that Mitsuba bakes into the walks' kernels:
-    changed between renders (mi.traverse), the pass records anew (frozen.scene_values)
+    changed between renders (mi.traverse), the pass records anew (support.SceneFacts.values)
     instead of replaying the kernels of the old eta."""
     scene = mi.load_file(scene_path("glass-pane.xml"), resx=16, resy=16)
     _render(scene, True, seed=1, light_paths=1, connections="all")

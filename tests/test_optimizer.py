@@ -473,9 +473,9 @@ def test_re_decisions_after_4_16_and_64_times_the_pilots_samples():
 
 def test_the_pilots_buffers_are_touched_outside_its_timed_kernels():
     """The calibration (render.calibrate) times the pilot's walks by their JIT kernels;
-    the moment buffer and its light
-    pools are filled by memsets first (vertices.LightVertexStore), so that the fresh
-    pages' faults are not charged to connections and light subpaths (they made
+    there (``zeroed``: a pass with ``Renderer.timings``) the moment buffer and its
+    light pools are filled by memsets first (vertices.LightVertexStore), so that the
+    fresh pages' faults are not charged to connections and light subpaths (they made
     connections look 1.5-9x dearer in a process's first render)."""
     from bdpt_drjit.vertices import LightVertexStore
     def kernels(make):
@@ -487,7 +487,7 @@ def test_the_pilots_buffers_are_touched_outside_its_timed_kernels():
 
     lanes = 4096
     llvm = mi.variant().startswith("llvm")     # CUDA's history lists no memsets
-    moments, launched = kernels(lambda: MomentSamples(lanes))
+    moments, launched = kernels(lambda: MomentSamples(lanes, zeroed=True))
     slots = lanes * MomentSamples.SLOTS
     assert not llvm or (dr.KernelType.Memset, slots * 4) in launched   # 4 bytes a field
     assert all(size < slots for kind, size in launched if kind == dr.KernelType.JIT)

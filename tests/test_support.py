@@ -7,6 +7,7 @@ import io
 import os
 import subprocess
 import sys
+import warnings
 
 import mitsuba as mi
 import numpy as np
@@ -117,6 +118,25 @@ def test_reversed_vertex_normals_warn():
         bdpt_drjit.render(scene, spp=1, max_depth=2)
     lowpoly = mi.load_file(str(SCENES / "stress" / "smooth-lowpoly.xml"))
     assert all(support.reversed_normals(s) == 0.0 for s in lowpoly.shapes() if s.is_mesh())
+
+
+def test_a_scene_edited_between_renders_is_inspected_anew():
+    """A render inspects a scene once while its state is the same (support.facts):
+    with the floor's vertex normals flipped through mi.traverse between renders, the
+    next render no longer warns of them."""
+    scene = mi.load_file(str(PLUGINS / "reversed-normals.xml"), resx=8, resy=8)
+    sensor = scene.sensors()[0]
+    assert support.facts(scene, sensor) is support.facts(scene, sensor)
+    with pytest.warns(UserWarning, match="oppose its triangle winding"):
+        bdpt_drjit.render(scene, spp=1, max_depth=2)
+    params = mi.traverse(scene)
+    name = [k for k in params.keys() if k.startswith("floor.") and k.endswith("vertex_normals")]
+    params[name[0]] = -params[name[0]]
+    params.update()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        bdpt_drjit.render(scene, spp=1, max_depth=2)
+    assert not [w for w in caught if "triangle winding" in str(w.message)]
 
 
 def test_reversed_normals_weigh_triangles_by_area():
