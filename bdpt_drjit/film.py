@@ -45,6 +45,10 @@ import numpy as np
 
 
 class FilmAccumulator:
+    # frozen.py: the camera samples so far are counted on the host, after each pass,
+    # and read by no recorded pass (a new count would record each pass anew).
+    FROZEN_IGNORE = ("camera_samples",)
+
     def __init__(self, film: mi.Film, coalesce: bool, layers: list | None = None,
                  aov_names: list | None = None, border: int = 0):
         """``border``: pixels of filter border around the crop window that the camera

@@ -3,7 +3,8 @@ passes whose Python side is the same, without tracing it again.
 
 Tracing a walk in Python (Mitsuba's virtual calls over the scene's BSDFs and shapes,
 the MIS chains) and assembling its kernel cost 5-10 ms a pass whatever its size: on a
-64x64 film that is most of the pilot pass's time (its kernels run 3 ms).
+64x64 film that is most of the pilot pass's time (its kernels run 3 ms).  A pass of
+Mitsuba's path (render._recorded_path_pass) is recorded whole the same way.
 
 What a walk reads lives in plain Python objects (the pass context's emitters, MIS
 weights, media, camera) that ``dr.freeze`` cannot traverse.  So the recorded function
@@ -12,7 +13,8 @@ splits them into
 
 * the key: every Python value the tracing may branch on or bake into the kernel
   (ints, floats, strings, flags, the types and widths of arrays, the identity of each
-  Mitsuba object and of the scene) -- a call whose key differs records anew;
+  Mitsuba object and of the scene; a sampler's or an image block's type and sizes) --
+  a call whose key differs records anew;
 * the state: every Dr.Jit array and Mitsuba object they hold, which ``dr.freeze``
   takes as the recording's inputs (``state_fn``) and replaces by the new call's.
 
@@ -57,9 +59,10 @@ def _inputs(obj, key: list, state: list, seen: dict) -> None:
             key.append(name)
             _inputs(getattr(obj, name), key, state, seen)
     elif kind is _MITSUBA:                  # the scene, its sensor, samplers, plugins
-        # A pass's samplers are clones, new each pass: their type and counts are what
-        # the tracing sees; every other object, the scene's own, by identity.
-        key.append(("mitsuba", info[0], _sampler_key(obj) if info[1] else id(obj)))
+        # A pass's samplers are clones, new each pass, and a render's image blocks are
+        # its own: what the tracing sees of them is their type and sizes; every other
+        # object, the scene's own, by identity.
+        key.append(("mitsuba", info[0], info[1](obj) if info[1] else id(obj)))
         if id(obj) not in seen:
             seen[id(obj)] = len(seen)
             state.append(obj)
@@ -123,7 +126,8 @@ def _classify(t: type) -> tuple:
     elif getattr(t, "DRJIT_STRUCT", None) is not None:
         kind = _STRUCT, (("struct", t.__qualname__), tuple(t.DRJIT_STRUCT))
     elif issubclass(t, mi.Object):
-        kind = _MITSUBA, (t.__name__, issubclass(t, mi.Sampler))
+        kind = _MITSUBA, (t.__name__, _sampler_key if issubclass(t, mi.Sampler) else
+                          _block_key if issubclass(t, mi.ImageBlock) else None)
     elif issubclass(t, (list, tuple)):
         kind = _SEQUENCE, t.__name__
     elif issubclass(t, (set, frozenset)):
@@ -164,6 +168,14 @@ def _function(fn, key: list, state: list, seen: dict) -> None:
 def _sampler_key(sampler) -> tuple:
     """What a sampler's calls bake into kernels and its traversal does not give."""
     return (sampler.class_name(), sampler.sample_count(), sampler.wavefront_size())
+
+
+def _block_key(block) -> tuple:
+    """What an image block's put bakes into kernels: its sizes and flags, and its
+    filter (the film's, by identity)."""
+    return (tuple(block.size()), tuple(block.offset()), block.channel_count(),
+            block.border_size(), block.coalesce(), block.normalize(), block.warn_invalid(),
+            block.warn_negative(), id(block.rfilter()))
 
 
 class _Calls:

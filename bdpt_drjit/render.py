@@ -18,6 +18,7 @@ pixels at 1 sample for very large films.  Peak memory does not grow with spp.
 """
 from __future__ import annotations
 
+import functools
 import math
 import sys
 import time
@@ -246,6 +247,42 @@ def _recorded_camera_walk(ctx, rays, store):
     return cam, None if ctx.moments is None else ctx.moments.buffers()
 
 
+@functools.lru_cache(maxsize=8)
+def _path_tracer(max_depth: int, rr_depth: int, hide_emitters: bool) -> mi.Integrator:
+    """Mitsuba's ``path`` with these settings, one object for every render: the
+    recorded path passes (frozen.py) name it by identity."""
+    return mi.load_dict({"type": "path", "max_depth": max_depth, "rr_depth": rr_depth,
+                         "hide_emitters": hide_emitters})
+
+
+def _recorded_path_pass(camera, sensor, seed, integrator, scene, film, aovs, opaque: bool,
+                        pixel_offset: int, n_pixels: int, spp: int, stride: int):
+    """A path-traced pass whole, as frozen.py records it: its sampler seeded by an
+    opaque ``seed``, its camera rays, Mitsuba's path on them and the film's put, in
+    one kernel as in Mitsuba's own render, with no buffer between them (measured as
+    three kernels: the same time, 101-108 ns per sample against ``path``'s 100, glass
+    pane 128x128 256 spp).  Tracing the path megakernel and the put cost each pass
+    what ``mi.render`` spends before its kernel runs (2 ms, 5 under load); a replay
+    takes 0.5.  (Recording the walk alone saved nothing at 64x64: its values and the
+    sampler's state were then written out for the film's kernel.)  ``opaque``: alpha
+    is 1 everywhere (``_put_camera``)."""
+    sampler = sensor.sampler().clone()
+    sampler.set_sample_count(spp)
+    sampler.set_samples_per_wavefront(spp)
+    sampler.seed(seed, n_pixels * spp)
+    rays = camera.sample_rays(sampler, pixel_offset, n_pixels, spp, stride)
+    walk = path_tracer_walk(integrator, scene, rays, sampler)
+    _put_camera(film, aovs, opaque, rays, walk.radiance, walk.hit)
+
+
+def _put_camera(film, aovs, opaque: bool, rays, radiance, hit, images=None, lanes: int = 0):
+    """The camera samples' values on the film.  Alpha as Mitsuba's path: 1 where the
+    camera ray hit a surface, everywhere if an environment shows (``opaque``)."""
+    film.put_camera(rays, radiance, hit | opaque, images, lanes)
+    if aovs is not None:
+        film.put_aovs(rays, aovs.values(rays.ray))
+
+
 def plan_passes(spp: int, pixels: int, max_lanes: int, explicit: int, accepted) -> list:
     """Split spp x pixels into passes (pixel offset, pixels, spp) of at most
     ``max_lanes`` lanes.  Automatic passes are equal in size: Dr.Jit keeps freed
@@ -339,6 +376,8 @@ class Renderer:
         self.redecide = True        # False: the pilot's decision and plan hold (cluster.py)
         aov_list = aovs.parse(self.settings.aovs)
         self.aovs = aovs.AOVs(scene, aov_list) if aov_list else None
+        # Alpha 1 everywhere: an environment shows (``_put_camera``).
+        self._opaque = self.emitters.environment is not None and not self.settings.hide_emitters
         self.film = FilmAccumulator(film, coalesce=self.spp >= 4, layers=layers,
                                     aov_names=aovs.channel_names(aov_list), border=border)
         self.passes_done = 0
@@ -372,10 +411,9 @@ class Renderer:
             if not self.media.present and not self._path_drops_light:
                 # Where the pilot chooses path tracing, Mitsuba's path renders the rest
                 # (elsewhere this engine's camera walk does, with s <= 1).
-                self._path_tracer = mi.load_dict({
-                    "type": "path", "max_depth": self.settings.max_depth,
-                    "rr_depth": self.settings.rr_depth,
-                    "hide_emitters": self.settings.hide_emitters})
+                self._path_tracer = _path_tracer(self.settings.max_depth,
+                                                 self.settings.rr_depth,
+                                                 self.settings.hide_emitters)
             self.pilot.costs.path_tracer = self._path_tracer is not None
 
     def _lanes_for(self, budget: Budget) -> int:
@@ -713,24 +751,16 @@ class Renderer:
         self.film.put_splats(splats, ctx.wavelengths, lanes / ctx.light_count * stride, keep)
 
     def _put_camera(self, rays, cam, images=None, lanes: int = 0):
-        """The camera samples' values on the film.  Alpha as Mitsuba's path: 1 where
-        the camera ray hit a surface, everywhere if an environment shows."""
-        opaque = self.emitters.environment is not None and not self.settings.hide_emitters
-        self.film.put_camera(rays, cam.radiance, cam.hit | opaque, images, lanes)
-        if self.aovs is not None:
-            self.film.put_aovs(rays, self.aovs.values(rays.ray))
+        _put_camera(self.film, self.aovs, self._opaque, rays, cam.radiance, cam.hit, images,
+                    lanes)
 
     def _path_traced_pass(self, index, pixel_offset, n_pixels, spp, lanes):
         """A pass after the pilot chose path tracing: Mitsuba's ``path`` on the pass's
-        camera rays; rays, walk and the film's put run in one kernel, as in Mitsuba's
-        own render, with no buffer of rays or radiance between them (measured: the
-        same time as three kernels, 101-108 ns per sample against ``path``'s 100, glass
-        pane 128x128 256 spp)."""
-        sampler = self._sampler(index, 0, lanes, spp)
-        rays = self.camera.sample_rays(sampler, pixel_offset, n_pixels, spp,
-                                       self._stride.get(index, 1))
-        self._put_camera(rays, path_tracer_walk(self._path_tracer, self.scene, rays, sampler))
-        sampler.schedule_state()
+        camera rays, recorded whole (``_recorded_path_pass``)."""
+        seed = dr.opaque(mi.UInt32, _mix_seed(self.seed, index, 0))
+        frozen.call(_recorded_path_pass, self.camera, self.sensor, seed, self._path_tracer,
+                    self.scene, self.film, self.aovs, self._opaque, pixel_offset, n_pixels,
+                    spp, self._stride.get(index, 1))
         dr.eval(*[block.tensor() for block in self.film.blocks()])
         self.film.camera_samples += lanes
         self.path_tracer_spp += n_pixels * spp / self.pixels

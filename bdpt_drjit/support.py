@@ -130,8 +130,8 @@ def inspect(scene: mi.Scene, sensor: mi.Sensor) -> list:
 @dataclass
 class SceneFacts:
     """What a render reads of a scene before its first pass (``facts``)."""
-    # Its Python-valued parameters, (name, repr or variable indices): a dielectric's
-    # eta, a sensor's clip planes, a shape's transform.  Mitsuba bakes them into the kernels that call its plugins, so a render
+    # Its parameters that are no Dr.Jit array, (name, repr): a dielectric's eta, a
+    # sensor's clip planes, a shape's transform.  Mitsuba bakes them into the kernels that call its plugins, so a render
     # puts them in its passes' context (render.PassContext), whose values key the
     # frozen walks' recordings: an eta changed between renders then records anew
     # instead of replaying the old one.
@@ -144,8 +144,9 @@ class _LastScene:
     """The facts of the last scene asked about, while its state is the same: a render
     of a 64x64 film spent 0.8-1.2 ms of its 26 inspecting a scene it had inspected
     before.  The state is every parameter a traversal shows, its Python values by
-    repr and its Dr.Jit arrays by variable index (an update through ``mi.traverse``
-    puts new arrays in), so a scene edited between renders is inspected anew.  Scenes
+    repr and its Dr.Jit arrays and transforms by variable index (an update through
+    ``mi.traverse`` puts new arrays in), so a scene edited between renders is
+    inspected anew.  Scenes
     cannot be weakly referenced: the last one is held, as frozen.py's recordings
     hold theirs."""
     key: tuple = ()
@@ -155,23 +156,25 @@ class _LastScene:
 def facts(scene: mi.Scene, sensor: mi.Sensor) -> SceneFacts:
     """``scene``'s facts through ``sensor``, inspected anew where its state changed."""
     params = mi.traverse(scene)
-    values, arrays = [], []
+    state, structs = [], []
     for name in params.keys():
         v = params[name]
-        if dr.is_jit_v(v):
-            arrays.append((name, tuple(dr.detail.collect_indices(v))))
+        indices = dr.detail.collect_indices(v)
+        if indices:         # Dr.Jit arrays, and transforms, which hold them
+            state.append((name, tuple(indices)))
+            if not dr.is_jit_v(v):
+                structs.append(name)
         else:
-            # A transform holds Dr.Jit arrays but is none: its repr read every entry
-            # back, one sync each (288 for the glass pane's 4 transforms, 1-3 ms).
-            # By variable index it keys the recordings anew when it changes, as its
-            # values did.
-            indices = dr.detail.collect_indices(v)
-            values.append((name, tuple(indices) if indices else repr(v)))
-    key = (scene, sensor, tuple(values), tuple(arrays))
+            state.append((name, repr(v)))
+    key = (scene, sensor, tuple(state))
     last = _LastScene
-    if (last.facts is None or key[0] is not last.key[0] or key[1] is not last.key[1]
-            or key[2:] != last.key[2:]):
-        last.facts = SceneFacts(tuple(values), inspect(scene, sensor),
+    if last.facts is None or key[0] is not last.key[0] or key[1] is not last.key[1] \
+            or key[2] != last.key[2]:
+        # A transform's repr reads every entry back, one sync each (288 for the glass
+        # pane's 4 transforms, 1-3 ms): only here, where the state changed.
+        values = dict(item for item in state if isinstance(item[1], str))
+        values.update((name, repr(params[name])) for name in structs)
+        last.facts = SceneFacts(tuple(values.items()), inspect(scene, sensor),
                                 mitsuba_path_drops_light(scene))
         last.key = key
     return last.facts

@@ -13,6 +13,10 @@ from conftest import scene_path
 # The film's float atomics add a pass's footprints in thread order (test_determinism).
 TOL = dict(rtol=1e-5, atol=1e-6)
 
+# The default budget (conftest.fixed_budget): its pilot pass and the passes it chooses
+# are what these tests replay.
+pytestmark = pytest.mark.auto_budget
+
 
 @pytest.fixture
 def freezing():
@@ -40,6 +44,21 @@ def test_replayed_pilot_gives_the_traced_image(freezing, name):
         assert budget == traced_budget
         np.testing.assert_allclose(replayed, traced, **TOL)
         assert traced.mean() > 0
+
+
+def test_a_path_traced_pass_replays_the_traced_image_and_aovs(freezing):
+    """Where the pilot chooses path tracing, each later pass is recorded whole
+    (render._recorded_path_pass: its sampler, Mitsuba's path and the film's put, AOVs
+    included), and a later render replays it: the image and channels of the traced
+    pass."""
+    scene = mi.load_file(scene_path("glass-pane.xml"), resx=24, resy=24)
+    kw = dict(aovs="al:albedo,dd:depth")
+    _render(scene, True, seed=100, **kw)                # records
+    traced, budget = _render(scene, False, seed=1, **kw)
+    replayed, _ = _render(scene, True, seed=1, **kw)
+    assert budget == "light_paths=0 connections=0"
+    assert replayed.shape[-1] == 3 + 3 + 1
+    np.testing.assert_allclose(replayed, traced, **TOL)
 
 
 def test_a_new_seed_records_nothing(freezing):
