@@ -109,3 +109,29 @@ def test_numpy_values_are_read_by_the_same_kernels_whatever_their_alignment():
         entries = launches(lambda: dr.eval(x * 3 + 1))
         hashes |= {e["hash"] for e in entries if e["size"] == 1024}  # not earlier tests'
     assert len(hashes) == 1
+
+
+@pytest.mark.auto_budget
+def test_a_path_traced_render_with_a_new_seed_compiles_nothing():
+    """Where the pilot chooses path tracing, its passes (Mitsuba's path, recorded whole
+    with the seed opaque: render._recorded_path_pass) compile nothing for a new seed."""
+    scene = mi.load_file(scene_path("glass-pane.xml"), resx=24, resy=24)
+    for seed in (1, 2):
+        out = bdpt_drjit.render(scene, spp=32, seed=seed, max_depth=8)
+    assert out.stats["path_tracer_spp"] > 0, "the premise: path tracing is chosen"
+    again = launches(lambda: bdpt_drjit.render(scene, spp=32, seed=3, max_depth=8))
+    assert again and not compiled(again), len(compiled(again))
+
+
+def test_the_set_up_of_a_render_reads_little_back():
+    """A render's set-up reads almost nothing back from the device (each read a sync):
+    the scene's transforms went through repr, one read per matrix entry (289 copies in
+    the glass pane's set-up), and every mesh's normals were checked again by a kernel
+    and a read per render (support.facts keeps them while the scene is the same)."""
+    from bdpt_drjit.render import Renderer
+    scene = mi.load_file(scene_path("glass-pane.xml"), resx=16, resy=16)
+    Renderer(scene, spp=32, seed=1, max_depth=8)
+    dr.kernel_history()
+    Renderer(scene, spp=32, seed=2, max_depth=8)
+    copies = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.Memcpy]
+    assert len(copies) <= 2, len(copies)
