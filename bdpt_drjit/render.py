@@ -259,13 +259,12 @@ def _recorded_path_pass(camera, sensor, seed, integrator, scene, film, aovs, opa
                         pixel_offset: int, n_pixels: int, spp: int, stride: int):
     """A path-traced pass whole, as frozen.py records it: its sampler seeded by an
     opaque ``seed``, its camera rays, Mitsuba's path on them and the film's put, in
-    one kernel as in Mitsuba's own render, with no buffer between them (measured as
-    three kernels: the same time, 101-108 ns per sample against ``path``'s 100, glass
-    pane 128x128 256 spp).  Tracing the path megakernel and the put cost each pass
-    what ``mi.render`` spends before its kernel runs (2 ms, 5 under load); a replay
-    takes 0.5.  (Recording the walk alone saved nothing at 64x64: its values and the
-    sampler's state were then written out for the film's kernel.)  ``opaque``: alpha
-    is 1 everywhere (``_put_camera``)."""
+    one kernel as in Mitsuba's own render (101-108 ns per sample against ``path``'s
+    100, glass pane 128x128 256 spp).  Tracing the path megakernel and the put cost
+    each pass what ``mi.render`` spends before its kernel runs (2 ms, 5 under load);
+    a replay takes 0.5.  (Recording the walk alone saved nothing at 64x64: its values
+    and the sampler's state were then written out for the film's kernel.)
+    ``opaque``: alpha is 1 everywhere (``_put_camera``)."""
     sampler = sensor.sampler().clone()
     sampler.set_sample_count(spp)
     sampler.set_samples_per_wavefront(spp)

@@ -131,10 +131,10 @@ def inspect(scene: mi.Scene, sensor: mi.Sensor) -> list:
 class SceneFacts:
     """What a render reads of a scene before its first pass (``facts``)."""
     # Its parameters that are no Dr.Jit array, (name, repr): a dielectric's eta, a
-    # sensor's clip planes, a shape's transform.  Mitsuba bakes them into the kernels that call its plugins, so a render
-    # puts them in its passes' context (render.PassContext), whose values key the
-    # frozen walks' recordings: an eta changed between renders then records anew
-    # instead of replaying the old one.
+    # sensor's clip planes, a shape's transform.  Mitsuba bakes them into the kernels
+    # that call its plugins, so a render puts them in its passes' context
+    # (render.PassContext), whose values key the frozen walks' recordings: an eta
+    # changed between renders then records anew instead of replaying the old one.
     values: tuple
     verdicts: list          # ``inspect``'s
     path_drops_light: bool  # ``mitsuba_path_drops_light``
@@ -146,9 +146,8 @@ class _LastScene:
     before.  The state is every parameter a traversal shows, its Python values by
     repr and its Dr.Jit arrays and transforms by variable index (an update through
     ``mi.traverse`` puts new arrays in), so a scene edited between renders is
-    inspected anew.  Scenes
-    cannot be weakly referenced: the last one is held, as frozen.py's recordings
-    hold theirs."""
+    inspected anew.  Scenes cannot be weakly referenced: the last one is held, as
+    frozen.py's recordings hold theirs."""
     key: tuple = ()
     facts: SceneFacts | None = None
 
