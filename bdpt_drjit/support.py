@@ -173,9 +173,15 @@ def facts(scene: mi.Scene, sensor: mi.Sensor) -> SceneFacts:
         # pane's 4 transforms, 1-3 ms): only here, where the state changed.
         values = dict(item for item in state if isinstance(item[1], str))
         values.update((name, repr(params[name])) for name in structs)
-        last.facts = SceneFacts(tuple(values.items()), inspect(scene, sensor),
-                                mitsuba_path_drops_light(scene))
-        last.key = key
+        out = SceneFacts(tuple(values.items()), inspect(scene, sensor),
+                         mitsuba_path_drops_light(scene))
+        if any(v.status == REFUSED for v in out.verdicts):
+            # Not held: the render stops here, and a scene kept alive joins Dr.Jit's
+            # virtual calls over every emitter and shape of the process (an area light
+            # on an instance then failed another scene's light walk).
+            last.facts, last.key = None, ()
+            return out
+        last.facts, last.key = out, key
     return last.facts
 
 
