@@ -2,7 +2,9 @@
 merging decision, predicted from a ``vcm`` render's pilot moments (issue 30).
 
     python benchmarks/experiments/merge_mask.py [--scenes bs_c,lg_c,bs_p,sds,cornell-diffuse,veach-bidir]
-        [--seeds 32]
+        [--seeds 32] [--blur 4,16,24]
+    python benchmarks/experiments/merge_mask.py --scenes sds --renders REFS --seeds 12
+        --budget light_paths=0.25,connections=0 --scale 1 --blur 4,16,24
 
 Per scene and seed a ``Renderer(merging=True)`` runs its pilot pass; its decision's
 inputs (optimizer.Pilot._decide) are kept and each candidate's relative moment is
@@ -14,17 +16,22 @@ merging (optimizer.missed_bias, per pixel).
 A mask is exact in this model: a path's pixel is a property of the path (every
 technique that samples it, the light image's t = 1 included, puts it in the same
 pixel), so a per-pixel merging rate eta(p) gives each pixel the moment that merging
-everywhere (p in the mask) or nowhere gives it.  Its cost: the budget without merging,
-plus the grid's build (and the stored vertices if the budget does not connect) once any
-pixel merges, plus the queries in proportion to the masked share of camera samples.
+everywhere (p in the mask) or nowhere gives it.  (The weights: the camera walk knows
+its pixel and uses eta(p) in its chains; a light subpath does not, and carries its
+d_vc's merging part apart, d_vc being affine in h(eta) (mis.after_scatter), until a
+connection names the camera sample's pixel or a t = 1 splat the pixel it lands in.)
+Its cost: the budget without merging, plus the grid's build (and the stored vertices
+if the budget does not connect) once any pixel merges, plus the queries in
+proportion to the masked share of camera samples.
 
 For each pair (a budget with light subpaths, its merging twin at each radius) the best
 mask of k pixels holds the k of most negative m_on - m_off; scanning k gives the best
 mask exactly.  Figures, as efficiency ratios (global's cost x moment over the mask's;
 > 1: the mask gains):
 
-  oracle   decided and evaluated on the mean of all seeds' per-pixel moments (an upper
-           bound: a per-pixel minimum of noisy moments is biased low);
+  oracle   decided and evaluated on the mean of all seeds' per-pixel moments (the
+           task's per-pixel minimum; optimistic: a per-pixel minimum of noisy
+           moments is biased low);
   k seeds  decided on the mean of k seeds' moments (k pilots' worth of samples; the
            mask on them box-blurred, optimizer.BLUR), evaluated on the mean of the
            other seeds' moments, against the global decision made and evaluated the
@@ -33,7 +40,9 @@ mask exactly.  Figures, as efficiency ratios (global's cost x moment over the ma
            each (optimizer.Pilot.moment_every).
 
 Both over the best pair (the global decision's best candidate against the best mask of
-any pair) and for the pair of the pilot's chosen budget.
+any pair) and for the pair of the pilot's chosen budget.  ``--blur``: the mask's box
+filter radii to try.  ``--renders REFS``: the same from real renders' per-pixel errors
+(``rendered``).  Results: benchmarks/RESULTS.md, "A per-pixel merge mask".
 """
 import argparse
 import statistics
