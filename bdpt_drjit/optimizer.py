@@ -61,7 +61,22 @@ query and the items visited, which grow with eta).  Where the decision leaves me
 pass builds a grid or queries it (render.py), but the re-decisions still weigh the
 merging candidates, by the pilot's moments (Pilot.redecide), so that the other
 candidates' moments, firmer with every moment pass, can turn merging on.  The
-decision is global: no per-pixel merge mask.
+decision is global: no per-pixel merge mask (Grittmann et al. 2022); measured, it
+does not pay from the pilot's moments.  A mask would be consistent: a path's pixel
+is the same for every technique that samples it (the light image's splat lands in
+the pixel its t >= 2 twins' camera rays pass through), so a rate eta(p) per pixel
+keeps the weights summing to 1, with the light subpath's chains carrying merging's
+part apart until a connection or a splat names the pixel (d_vc is affine in h(eta),
+mis.py's after_scatter; the shadow pass's d_vm is that part for the balance
+heuristic).  But its decision rests on per-pixel moments, and a pilot's are too
+sparse (benchmarks/experiments/merge_mask.py, RESULTS.md): a mask chosen from one
+pilot's moments, blurred as its means are, gained 0.96-1.00x (medians over 32 seeds,
+judged on the other seeds' moments) on SmallVCM's boxes and lost 3.4x on the SDS
+scene, whose mirror caustic's pixels it leaves out; only in-sample per-pixel minima
+(the pilot's noise) promised 1.12-1.34x.  Real renders' per-pixel errors, at
+hundreds of samples per pixel, give a mask 1.23x on SmallVCM's large glass sphere
+and 1.15x on the SDS scene (there as a region, two thirds of the film): a mask would
+have to be decided from the render's own errors, not from the pilot.
 
 Costs are counted, not timed: the pilot counts per camera sample the rays of the
 camera walk with s <= 1, per light subpath the rays of the light walk and its t = 1
