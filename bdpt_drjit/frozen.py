@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import gc
 import hashlib
 import types
 
@@ -222,7 +223,12 @@ def call(fn, *args):
 
     Every input is made opaque (``auto_opaque=False``): a literal that changed from
     one call to the next would otherwise record the kernels again with it opaque, so
-    that which kernels a pass runs would depend on the passes before it."""
+    that which kernels a pass runs would depend on the passes before it.
+
+    Python's cyclic collector is off during the call: run at an allocation inside a
+    recording, it freed arrays and objects of earlier renders there, and Dr.Jit 1.5
+    aborted the process (tests/test_optimizer.py run after test_vcm.py and
+    test_mis.py, in a light walk's recording)."""
     if not ENABLED or not mi.variant().startswith("llvm"):
         return fn(*args)
     key, state, seen = [mi.variant()], [], {}
@@ -232,6 +238,8 @@ def call(fn, *args):
         return fn(*args)
     _keep_alive(state)
     _calls.stack.append((fn, state, args))
+    collecting = gc.isenabled()
+    gc.disable()
     try:
         recorded = _frozen.n_recordings
         return _frozen(digest)
@@ -242,6 +250,8 @@ def call(fn, *args):
         raise RecordingFailed(str(error)) from error
     finally:
         _calls.stack.pop()
+        if collecting:
+            gc.enable()
 
 
 def _digest(key: list) -> str:
