@@ -9,7 +9,7 @@ bootstraps included in their time),
 the default ``bdpt`` (auto budget, its pilot included), Veach's BDPT
 (light_paths=1 connections=all) and Mitsuba's ``path`` (in ``--methods``; renders of
 16 spp averaged); ``--mlt K=V,...`` adds pssmlt methods with other parameters (MMLT ones with
-``mmlt=1`` among them; numeric values only).  Each stops after the pass or iteration that crosses
+``mmlt=1`` among them, ``frozen=0`` for walks traced, not replayed; numeric values only).  Each stops after the pass or iteration that crosses
 the time, with an image normalized for what it did.  The reference is the mean of 8
 or more BDPT renders (``--ref-spp`` in all, at most 2048 spp each); its own noise is
 estimated from their spread and reported.  relMSE = mean over pixels of (I - R)^2 / (R^2 + eps), on the luminance,
@@ -25,6 +25,7 @@ import numpy as np
 
 import bdpt_drjit  # noqa: F401
 import mitsuba as mi
+from bdpt_drjit import frozen as walks
 from bdpt_drjit import mlt, mmlt, support
 from bdpt_drjit.render import Renderer
 
@@ -41,7 +42,17 @@ def timed_bdpt(scene, seconds, seed, **settings):
     return _lum(res.image), res.time, res.spp
 
 
-def timed_mlt(scene, seconds, seed, mis=True, chains=0, bootstrap=0, renderer=None, **params):
+def timed_mlt(scene, seconds, seed, mis=True, chains=0, bootstrap=0, renderer=None, frozen=1,
+              **params):
+    """``frozen`` 0: the chains' walks traced, not replayed (bdpt_drjit.frozen)."""
+    old, walks.ENABLED = walks.ENABLED, bool(frozen)
+    try:
+        return _timed_mlt(scene, seconds, seed, mis, chains, bootstrap, renderer, **params)
+    finally:
+        walks.ENABLED = old
+
+
+def _timed_mlt(scene, seconds, seed, mis, chains, bootstrap, renderer, **params):
     kw = dict(max_depth=8, mutations_per_pixel=1 << 16, chains=chains, large_step_mis=mis,
               bootstrap_samples=bootstrap)
     r = (renderer or mlt.MLTRenderer)(scene, seed=seed, **{**kw, **params})
