@@ -512,11 +512,13 @@ class MLTRenderer:
         return Evaluation(f=f, camera=camera, splats=splats, rays=totals)
 
     def _walk(self, fn, *args):
-        """A walk of ``evaluate``, replayed where recorded (frozen.py): tracing the
-        walks cost more than their kernels with the chains' lanes (door ajar 64x64,
-        8192 chains: an iteration 15.3 ms, its kernels 5.6).  The bootstrap's walks,
-        which write every strategy's luminance (``images``), are traced, as the
-        renderer's strategy images are."""
+        """A walk of ``evaluate`` in an iteration, replayed where recorded
+        (frozen.py): tracing the walks cost more than their kernels at the chains'
+        lane counts (door ajar 64x64, 8192 chains: an iteration 15.3 ms, its kernels
+        5.6; replayed 16-17 ms against 34 traced, 32768 chains 48 against 62-82, under
+        load; benchmarks/RESULTS.md).  The bootstrap's walks, which write every
+        strategy's luminance (``images``), the first stage's, the start states' and the
+        pilot's run once or a few times a render and are traced."""
         if self.images is not None or not self._iterating:
             return fn(*args)
         return frozen.call(fn, *args)
