@@ -254,6 +254,24 @@ def call(fn, *args):
             gc.enable()
 
 
+def _nothing(*objects):
+    return None
+
+
+def settle(*objects) -> None:
+    """Make the literal arrays inside Mitsuba ``objects`` (a scene's one-value
+    parameters, a film's zeroed storage) evaluated, as a recording does with its
+    inputs (it copies them and assigns the copies back): a walk traced after a
+    recording then compiles against the same variables as before it, not a kernel of
+    its own (mlt.py: a second seed compiled 4 kernels).  A no-op function, recorded
+    once per kind of object and replayed after (one that cannot be recorded settles
+    nothing, and is harmless)."""
+    try:
+        call(_nothing, *objects)
+    except RecordingFailed:
+        pass
+
+
 def _digest(key: list) -> str:
     """The key as one string.  ``dr.freeze`` 1.5 told a tuple of Python values from
     another by a hash that swapped values passed: a walk of technique (3, 2) replayed

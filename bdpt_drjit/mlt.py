@@ -55,7 +55,7 @@ import mitsuba as mi
 import numpy as np
 
 from . import camera as camera_stage
-from . import pss, support
+from . import frozen, pss, support
 from .backend import device_array
 from .budgets import BDPT
 from .chain_strategies import ChainStrategies
@@ -64,11 +64,11 @@ from .film import FilmAccumulator
 from .media import Media
 from .mis import Weights
 from .optimizer import luminance
-from .render import PassContext, RenderResult, _mix_seed, check_variant
+from .render import (PassContext, RenderResult, _mix_seed, _recorded_camera_walk,
+                     _recorded_light_walk, check_variant)
 from .settings import Settings
 from .strategies import StrategySet
 from .vertices import LightVertexStore, gather
-from .walk import trace_camera_subpaths, trace_light_subpaths
 
 # Depths whose numbers a chain stores (the dimension budget); deeper vertices draw
 # fresh numbers each evaluation (pss.py).
@@ -399,6 +399,7 @@ class MLTRenderer:
                      "light_u": LIGHT_START + PER_DEPTH * depths}
         self._capacity = [4, 5]          # pool records per light subpath, raised on overflow
         self.iterations_done, self.time = 0, 0.0
+        self._iterating = False          # in run_iteration: the walks replay (``_walk``)
         self._rays = dr.zeros(mi.Float64, 1)     # rays traced (read by ``rays``)
         # mean acceptance per iteration, on the device (read by ``acceptance``)
         self._acceptance = dr.zeros(mi.Float, 64)
@@ -413,6 +414,7 @@ class MLTRenderer:
         # two-stage: 1 / L per pixel (``_first_stage``), and the first stage's samples
         self.two_stage, self.pixel_weight, self.stage_samples = mlt.get("two_stage", False), None, 0
         self.film_steps = pss.film_steps(int(max(film.crop_size())))
+        frozen.settle(self.scene, self.sensor)     # before any walk (frozen.settle)
         self._configure()
         start = time.perf_counter()
         self.b, self.state = self.bootstrap()
@@ -465,7 +467,14 @@ class MLTRenderer:
     def evaluate(self, lanes: int, samplers) -> Evaluation:
         """The BDPT sample of each lane's primary samples: ``samplers()`` makes a
         fresh (camera, light) pair (a light walk whose pools overflowed runs again on
-        the same numbers)."""
+        the same numbers).  A walk that Dr.Jit could not record (frozen.py) has run,
+        but its samplers moved on: the evaluation runs again, that walk traced."""
+        try:
+            return self._evaluate(lanes, samplers)
+        except frozen.RecordingFailed:
+            return self._evaluate(lanes, samplers)
+
+    def _evaluate(self, lanes: int, samplers) -> Evaluation:
         camera_sampler, light_sampler = samplers()
         rays = self.camera.sample_film_rays(camera_sampler, lanes)
         dr.eval(rays)
@@ -473,8 +482,10 @@ class MLTRenderer:
             self.images.weigh(self.weight_at, rays.pos)
         ctx = self._context(rays, camera_sampler, light_sampler, lanes, self._key(0x4E01))
         while True:
-            store = LightVertexStore(lanes, lanes * self._capacity[0], lanes * self._capacity[1])
-            light_rays = trace_light_subpaths(ctx, store)
+            store = LightVertexStore(lanes, lanes * self._capacity[0], lanes * self._capacity[1],
+                                     allocate=False)
+            light_rays, buffers = self._walk(_recorded_light_walk, ctx, store)
+            store.adopt(buffers)
             dr.eval(light_rays, store.vertices.items, store.splats.items, store.first)
             if not store.overflowed():
                 break
@@ -482,7 +493,7 @@ class MLTRenderer:
             self._capacity[1] = max(self._capacity[1], -(-store.splats.size() * 5 // (4 * lanes)))
             ctx.light_sampler = samplers()[1]
         ctx.stored = dr.opaque(mi.UInt32, max(store.vertices.size(), 1))
-        cam = trace_camera_subpaths(ctx, rays, store)
+        cam = self._walk(_recorded_camera_walk, ctx, rays, store)[0]
         dr.eval(cam.radiance, cam.rays)
         count = min(store.splats.size(), store.splats.capacity)
         if count:
@@ -499,6 +510,18 @@ class MLTRenderer:
         totals = mi.Float64(dr.sum(cam.rays) + dr.sum(light_rays))
         dr.eval(f, camera, splats, totals)
         return Evaluation(f=f, camera=camera, splats=splats, rays=totals)
+
+    def _walk(self, fn, *args):
+        """A walk of ``evaluate`` in an iteration, replayed where recorded
+        (frozen.py): tracing the walks cost more than their kernels at the chains'
+        lane counts (door ajar 64x64, 8192 chains: an iteration 15.3 ms, its kernels
+        5.6; replayed 16-17 ms against 34 traced, 32768 chains 48 against 62-82, under
+        load; benchmarks/RESULTS.md).  The bootstrap's walks, which write every
+        strategy's luminance (``images``), the first stage's, the start states' and the
+        pilot's run once or a few times a render and are traced."""
+        if self.images is not None or not self._iterating:
+            return fn(*args)
+        return frozen.call(fn, *args)
 
     def weight_at(self, pos: mi.Vector2f):
         """1 / L of the pixels at film positions ``pos`` (two-stage), or 1."""
@@ -645,7 +668,13 @@ class MLTRenderer:
 
     def _evaluate_vectors(self, lanes: int, keys, identity: mi.UInt32, x: dict) -> Evaluation:
         """The BDPT sample of each lane's vectors ``x`` (None: hashed from ``keys``
-        and ``identity``); past a vector's coordinates, numbers hashed likewise."""
+        and ``identity``); past a vector's coordinates, numbers hashed likewise.
+        ``identity`` is evaluated first: an unevaluated ``dr.arange`` of the lanes'
+        width is the same variable as the pass context's ``lane`` (Dr.Jit merges equal
+        expressions), and a frozen walk whose inputs alias differently from its
+        recording's records again (a second seed compiled 2 kernels)."""
+        identity = mi.UInt32(identity)
+        dr.make_opaque(identity)
         ev = self.evaluate(lanes, lambda: tuple(
             pss.PSSSampler.make(lanes, key, identity, x[name], self.dims[name])
             for name, key in zip(("camera_u", "light_u"), keys)))
@@ -661,7 +690,11 @@ class MLTRenderer:
             return
         start = time.perf_counter()
         with dr.suspend_grad():
-            self._iterate(self.iterations_done)
+            self._iterating = True
+            try:
+                self._iterate(self.iterations_done)
+            finally:
+                self._iterating = False
             dr.sync_thread()
         self.iterations_done += 1
         self.time += time.perf_counter() - start

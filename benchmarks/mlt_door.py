@@ -9,10 +9,10 @@ bootstraps included in their time),
 the default ``bdpt`` (auto budget, its pilot included), Veach's BDPT
 (light_paths=1 connections=all) and Mitsuba's ``path`` (in ``--methods``; renders of
 16 spp averaged); ``--mlt K=V,...`` adds pssmlt methods with other parameters (MMLT ones with
-``mmlt=1`` among them; numeric values only).  Each stops after the pass or iteration that crosses
+``mmlt=1`` among them, ``frozen=0`` for walks traced, not replayed; numeric values only).  Each stops after the pass or iteration that crosses
 the time, with an image normalized for what it did.  The reference is the mean of 8
-BDPT renders (``--ref-spp`` in all); its own noise is estimated from their spread and
-reported.  relMSE = mean over pixels of (I - R)^2 / (R^2 + eps), on the luminance,
+or more BDPT renders (``--ref-spp`` in all, at most 2048 spp each); its own noise is
+estimated from their spread and reported.  relMSE = mean over pixels of (I - R)^2 / (R^2 + eps), on the luminance,
 eps = (0.01 mean R)^2; MSE/mean^2 = mean of (I - R)^2 over the square of R's mean
 (bright and dark pixels alike).  The reference is cached in /tmp by its parameters."""
 from __future__ import annotations
@@ -25,6 +25,7 @@ import numpy as np
 
 import bdpt_drjit  # noqa: F401
 import mitsuba as mi
+from bdpt_drjit import frozen as walks
 from bdpt_drjit import mlt, mmlt, support
 from bdpt_drjit.render import Renderer
 
@@ -41,7 +42,17 @@ def timed_bdpt(scene, seconds, seed, **settings):
     return _lum(res.image), res.time, res.spp
 
 
-def timed_mlt(scene, seconds, seed, mis=True, chains=0, bootstrap=0, renderer=None, **params):
+def timed_mlt(scene, seconds, seed, mis=True, chains=0, bootstrap=0, renderer=None, frozen=1,
+              **params):
+    """``frozen`` 0: the chains' walks traced, not replayed (bdpt_drjit.frozen)."""
+    old, walks.ENABLED = walks.ENABLED, bool(frozen)
+    try:
+        return _timed_mlt(scene, seconds, seed, mis, chains, bootstrap, renderer, **params)
+    finally:
+        walks.ENABLED = old
+
+
+def _timed_mlt(scene, seconds, seed, mis, chains, bootstrap, renderer, **params):
     kw = dict(max_depth=8, mutations_per_pixel=1 << 16, chains=chains, large_step_mis=mis,
               bootstrap_samples=bootstrap)
     r = (renderer or mlt.MLTRenderer)(scene, seed=seed, **{**kw, **params})
@@ -64,18 +75,31 @@ def timed_path(scene, seconds, seed, chunk=16):
     return _lum(total / renders), time.perf_counter() - start, chunk * renders
 
 
+REF_RENDER_SPP = 2048     # the most spp of one reference render (the 16384-spp reference's)
+
+
 def reference(scene, path, res, ref_spp, gap_start):
-    """(luminance R, eps, R's own relMSE): the mean of 8 BDPT renders of ref_spp / 8
-    spp each, cached in /tmp by its parameters."""
-    cache = Path("/tmp/mlt_ref_%s_%d_%d_%g.npy" % (Path(path).stem, res, ref_spp, gap_start))
+    """(luminance R, eps, R's own relMSE): the mean of max(8, ref_spp / 2048) BDPT renders
+    (seeds 1000, 1001, ...) of ref_spp / their number spp each, cached in /tmp by its
+    parameters.  A larger reference starts from a smaller one's cache of the same
+    renders (16384 spp: 8 of 2048), so 65536 spp costs 24 renders more."""
+    n = max(8, ref_spp // REF_RENDER_SPP)
+    spp = ref_spp // n
+    name = "/tmp/mlt_ref_%s_%d_%%d_%g.npy" % (Path(path).stem, res, gap_start)
+    cache = Path(name % ref_spp)
     if cache.exists():
         refs = list(np.load(cache))
     else:
-        refs = [_lum(bdpt_drjit.render(scene, spp=ref_spp // 8, seed=1000 + k,
-                                       max_depth=8).image) for k in range(8)]
+        refs = []
+        if spp == REF_RENDER_SPP and Path(name % (8 * spp)).exists() and n > 8:
+            refs = list(np.load(name % (8 * spp)))
+        for k in range(len(refs), n):
+            refs.append(_lum(bdpt_drjit.render(scene, spp=spp, seed=1000 + k,
+                                               max_depth=8).image))
+            print("reference render %d of %d" % (k + 1, n), flush=True)
         np.save(cache, np.array(refs))
     ref = np.mean(refs, axis=0)
-    ref_var = np.var(refs, axis=0, ddof=1) / 8
+    ref_var = np.var(refs, axis=0, ddof=1) / n
     eps = (0.01 * ref.mean()) ** 2
     return ref, eps, float(np.mean(ref_var / (ref ** 2 + eps)))
 

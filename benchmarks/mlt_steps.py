@@ -14,7 +14,7 @@ of iterations per variant of the film position's step sizes (pss.FILM_S1_PIXELS 
 pixels, pss.FILM_S2 of the side; 0.0625,0.015625 at 64x64 are Kelemen's 1/1024 to 1/64,
 the other numbers' steps), the same seeds for each: the cost is the same, so the
 comparison does not depend on the machine's load.  64x64, max_depth 8; the references
-are mlt_door's (--ref-spp 16384, cached in /tmp)."""
+are mlt_door's (``--ref-spp``, 16384 unless given; cached in /tmp)."""
 from __future__ import annotations
 
 import argparse
@@ -84,13 +84,14 @@ def main(argv=None):
     ap.add_argument("--kind", choices=("mlt", "pssmlt"), default="mlt")
     ap.add_argument("--chains", type=int, default=16384)
     ap.add_argument("--bootstrap", type=int, default=1 << 20)
+    ap.add_argument("--ref-spp", type=int, default=16384, help="the reference's (mlt_door's)")
     ap.add_argument("--film", action="append", default=[], metavar="S1_PIXELS,S2")
     args = ap.parse_args(argv)
     args.film = args.film or ["0.0625,0.015625", "%g,%g" % (pss.FILM_S1_PIXELS, pss.FILM_S2)]
     door = Path(args.scene).name == "door-ajar.xml"
     gap = args.gap_start if door else 0.45
     scene = support.load_file(args.scene, resx=64, resy=64, **({"gap_start": gap} if door else {}))
-    ref, eps, _ = reference(scene, args.scene, 64, 16384, gap)
+    ref, eps, _ = reference(scene, args.scene, 64, args.ref_spp, gap)
     if args.mode == "trace":
         trace(scene, ref, eps, args.seconds, args.seeds)
     else:

@@ -270,6 +270,52 @@ def test_no_kernel_per_seed_with_automatic_chains():
     assert entries and not new, "%d kernels compiled" % len(new)
 
 
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_replayed_walks_give_the_traced_image(kind):
+    """The chains' walks replay recordings (frozen.py) from the second iteration on:
+    the same seed gives the traced walks' image (within the film's float atomics, as
+    tests/test_frozen.py), with two-stage and direct samples apart (the box)."""
+    from bdpt_drjit import frozen
+    scene = _box()
+    old, images = frozen.ENABLED, []
+    try:
+        for on in (True, False):
+            frozen.ENABLED = on
+            images.append(_mlt(scene, 3, kind, mutations_per_pixel=16).image)
+    finally:
+        frozen.ENABLED = old
+    np.testing.assert_allclose(images[0], images[1], rtol=1e-5, atol=1e-6)
+    assert images[0].mean() > 0
+
+
+def test_a_walk_that_cannot_be_recorded_is_traced(monkeypatch):
+    """Where Dr.Jit cannot record a walk (frozen.RecordingFailed, raised after the walk
+    ran: Mitsuba's various-emitters scene with bdpt, tests/test_frozen.py), the
+    evaluation runs again with its walks traced: the image is the traced one."""
+    from bdpt_drjit import frozen
+    scene = _box()
+    traced = frozen.call
+
+    def fails_once(fn, *args):
+        out = fn(*args)
+        if not failed and fn.__name__.endswith("_walk"):
+            failed.append(fn)
+            raise frozen.RecordingFailed("a walk Dr.Jit could not record")
+        return out
+    failed, images = [], []
+    old = frozen.ENABLED
+    try:
+        for on in (True, False):
+            frozen.ENABLED = on
+            monkeypatch.setattr(frozen, "call", fails_once if on else traced)
+            images.append(_mlt(scene, 3, "mlt", mutations_per_pixel=16).image)
+    finally:
+        frozen.ENABLED = old
+    assert failed
+    np.testing.assert_allclose(images[0], images[1], rtol=1e-5, atol=1e-6)
+    assert images[0].mean() > 0
+
+
 STRESS = sorted(p.name for p in (SCENES / "stress").glob("*.xml"))
 
 
