@@ -31,6 +31,7 @@ import dataclasses
 import enum
 import gc
 import hashlib
+import os
 import types
 
 import drjit as dr
@@ -205,19 +206,35 @@ def _state(key):
     return _calls.stack[-1][1]
 
 
-@dr.freeze(state_fn=_state, limit=LIMIT, warn_after=10 ** 6, auto_opaque=False,
-           backend=dr.JitBackend.LLVM)
-def _frozen(key):
-    fn, _, args = _calls.stack[-1]
-    return fn(*args)
+def _recorder(backend: dr.JitBackend):
+    """The frozen function of a backend, through which every recorded call goes."""
+    @dr.freeze(state_fn=_state, limit=LIMIT, warn_after=10 ** 6, auto_opaque=False,
+               backend=backend)
+    def frozen(key):
+        fn, _, args = _calls.stack[-1]
+        return fn(*args)
+    return frozen
 
+
+_frozen = _recorder(dr.JitBackend.LLVM)
 
 ENABLED = True
+# Backends whose calls are recorded: LLVM; CUDA where BDPT_FREEZE_CUDA=1, to be
+# measured on a GPU first (benchmarks/gpu_check.sh, step "frozen"): its recordings
+# hold OptiX's ray tracing, which the CPU's tests cannot reach.
+BACKENDS = ("llvm", "cuda") if os.environ.get("BDPT_FREEZE_CUDA") == "1" else ("llvm",)
+_RECORDERS = {"llvm": _frozen}
+
+
+def _recorder_of(backend: str):
+    if backend not in _RECORDERS:
+        _RECORDERS[backend] = _recorder(dr.JitBackend.CUDA)
+    return _RECORDERS[backend]
 
 
 def call(fn, *args):
-    """``fn(*args)``, recorded on the first call of its key and replayed after (LLVM
-    variants; CUDA ones trace every call: untested there).  ``fn`` must read nothing
+    """``fn(*args)``, recorded on the first call of its key and replayed after (the
+    variants of ``BACKENDS``; others trace every call).  ``fn`` must read nothing
     from the device and change no Python state that a later step reads: only its
     return value and the arrays it scatters to survive a replay.
 
@@ -229,8 +246,10 @@ def call(fn, *args):
     recording, it freed arrays and objects of earlier renders there, and Dr.Jit 1.5
     aborted the process (tests/test_optimizer.py run after test_vcm.py and
     test_mis.py, in a light walk's recording)."""
-    if not ENABLED or not mi.variant().startswith("llvm"):
+    backend = mi.variant().split("_", 1)[0]
+    if not ENABLED or backend not in BACKENDS:
         return fn(*args)
+    recorder = _recorder_of(backend)
     key, state, seen = [mi.variant()], [], {}
     _inputs((fn, args), key, state, seen)
     digest = _digest(key)
@@ -241,10 +260,10 @@ def call(fn, *args):
     collecting = gc.isenabled()
     gc.disable()
     try:
-        recorded = _frozen.n_recordings
-        return _frozen(digest)
+        recorded = recorder.n_recordings
+        return recorder(digest)
     except RuntimeError as error:
-        if _frozen.n_recordings == recorded:   # not a recording's failure
+        if recorder.n_recordings == recorded:   # not a recording's failure
             raise
         _calls.failed.add(digest)
         raise RecordingFailed(str(error)) from error
@@ -286,6 +305,7 @@ def _keep_alive(state: list) -> None:
     objects = {id(o): o for o in state if isinstance(o, mi.Object)
                and not isinstance(o, mi.Sampler)}
     if any(isinstance(o, mi.Scene) and i not in _calls.alive for i, o in objects.items()):
-        _frozen.clear()
+        for recorder in _RECORDERS.values():
+            recorder.clear()
         _calls.alive, _calls.failed = {}, set()
     _calls.alive.update(objects)

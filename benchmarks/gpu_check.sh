@@ -19,7 +19,7 @@ fi
 export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb} PYTHONUNBUFFERED=1
 PY=${PY:-python3}
 RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}
-STEPS=${STEPS:-calibrate tests passes breakdown divergence efficiency profile throughput memory small}
+STEPS=${STEPS:-calibrate tests frozen passes breakdown divergence efficiency profile throughput memory small}
 EXT=${BDPT_SHARED:-../shared}/scenes/external
 mkdir -p "$OUT"
 step() {   # step NAME SECONDS COMMAND...: run with a time limit, log, report
@@ -60,7 +60,17 @@ divergence() {   # the connection loop's wasted iterations per warp, and their t
     $PY benchmarks/experiments/connection_divergence.py scenes/deep-box.xml --max-depth 65 \
         --bound 2 --spp 4 --res "$RES"
 }
-export -f profile throughput passes breakdown divergence; export PY RES EXT
+frozen() {   # passes replaying recorded walks under CUDA (BDPT_FREEZE_CUDA=1): the
+             # recording's tests, then per-pass times against traced passes
+    BDPT_FREEZE_CUDA=1 $PY -m pytest -q -p no:cacheprovider tests/test_frozen.py \
+        tests/test_schedule.py tests/test_kernels.py
+    for f in 0 1; do
+        BDPT_FREEZE_CUDA=$f $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 --repeats 2 \
+            --methods veach,default
+    done
+    BDPT_FREEZE_CUDA=1 $PY -m benchmarks.small --seeds 8
+}
+export -f profile throughput passes breakdown divergence frozen; export PY RES EXT
 step calibrate 90 $PY -m bdpt_drjit calibrate --variant "$BDPT_VARIANT"
 step profile 40 profile
 step throughput 100 throughput
@@ -69,6 +79,7 @@ step breakdown 40 breakdown
 step divergence 90 divergence
 step tests 160 $PY -m pytest -q -p no:cacheprovider -n "${JOBS:-8}" --ignore tests/test_cluster.py \
     -k \'not spectral_and_mono and not variant_switch and not specfilm\'
+step frozen 150 frozen
 step efficiency 110 $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3
 step memory 60 $PY -m benchmarks.memory --res "$RES" --mib 8192 --budget auto
 step small 120 $PY -m benchmarks.small --seeds 8
