@@ -72,13 +72,18 @@ BDPT_LT = Method("bdpt-lt", "BDPT engine, LT strategies only", "bdpt",
 BDPT_FIRST_LT = Method("bdpt-first-lt", "BDPT engine, light image at smooth first hits", "bdpt",
                        (("mis", "power"), ("light_paths", 2), ("connections", 0),
                         ("first_hits", "light_image")), "C9", ":")
+# Metropolis light transport (mmlt.py, mlt.py): spp is the mutations per pixel.
+MLT = Method("mlt", "MLT, multiplexed (mlt)", "bdpt", (("integrator", "mlt"),), "C1", "--")
+PSSMLT = Method("pssmlt", "PSSMLT over BDPT samples (pssmlt)", "bdpt",
+                (("integrator", "pssmlt"),), "C2", "--")
 PATH = Method("path", "Mitsuba path", "mitsuba", (("type", "path"),), "C3", "-")
 PTRACER = Method("ptracer", "Mitsuba ptracer", "mitsuba", (("type", "ptracer"),), "C5", "-.")
 VOLPATH = Method("volpath", "Mitsuba volpath", "mitsuba", (("type", "volpath"),), "C9", "-")
 VOLPATHMIS = Method("volpathmis", "Mitsuba volpathmis", "mitsuba", (("type", "volpathmis"),), "C8", "--")
 
 METHODS = {m.name: m for m in (BDPT_AUTO, BDPT_POWER, BDPT_BALANCE, BDPT_UNIFORM, BDPT_LAFORTUNE, BDPT_NO_LT,
-                                BDPT_PT, BDPT_LT, BDPT_FIRST_LT, PATH, PTRACER, VOLPATH, VOLPATHMIS)}
+                                BDPT_PT, BDPT_LT, BDPT_FIRST_LT, MLT, PSSMLT, PATH, PTRACER, VOLPATH,
+                                VOLPATHMIS)}
 # The MIS weighting schemes, compared on Veach's budget (light_paths=1 connections=all,
 # which mis="lafortune" fixes itself; it has no light image): `benchmarks.run --weighting`.
 WEIGHTING = ["bdpt-power", "bdpt-balance", "bdpt-uniform", "bdpt-lafortune"]

@@ -152,10 +152,14 @@ def finish(res, cfg, out: Path, publish: str | None, progress) -> None:
     md = report.results_md(res, cfg, "charts")
     (out / "RESULTS.md").write_text(md)
     if publish:
-        C.replace_block(C.BENCH / "RESULTS.md", publish, report.as_block(md))
-        C.CHARTS.mkdir(parents=True, exist_ok=True)
+        # Another block than the suite's or the weighting's keeps its charts in a
+        # folder of its own: they bear the same scenes' names.
+        folder = "" if publish in ("suite", "weighting") else publish
+        block = md if not folder else report.results_md(res, cfg, "charts/" + folder)
+        C.replace_block(C.BENCH / "RESULTS.md", publish, report.as_block(block))
+        (C.CHARTS / folder).mkdir(parents=True, exist_ok=True)
         for png in (out / "charts").glob("*.png"):
-            charts.small_png(png, C.CHARTS / png.name)
+            charts.small_png(png, C.CHARTS / folder / png.name)
         progress("published charts to %s and the report to the block '%s' of %s"
                  % (C.CHARTS, publish, C.BENCH / "RESULTS.md"))
     for o in res["observations"]:
