@@ -22,15 +22,20 @@ shrinks over passes, r_i = r_1 i^((alpha - 1) / 2) for pass i = 1, 2, ... (Knaus
 Zwicker 2011; SmallVCM's schedule), so the bias vanishes as passes grow.
 
 The grid (SmallVCM's HashGrid, on the pool of stored light vertices, vertices.py):
-cells of side 2r hashed into BUCKETS buckets per vertex the pool can hold; per bucket
-a count (``dr.scatter_inc``, whose result is also each vertex's slot in its bucket),
-an exclusive prefix sum, and the pool's items scattered into bucket order.  A query
-reads the counts of the 8 cells that a sphere of radius r around z_j can touch, keeps
-those within r of z_j that hold items (a mask), and visits their items in one
-symbolic loop, one item per iteration; it keeps only items whose own cell is the one
-visited: two of the 8 cells hashed into one bucket would otherwise count its items
-twice (SmallVCM does), and a hash collision's foreign items are skipped before their
-distance is read.
+cells of side 2r hashed into at least BUCKETS buckets per vertex the pool can hold (a
+power of two); per bucket a count (``dr.scatter_inc``, whose result is also each
+vertex's slot in its bucket), an exclusive prefix sum, and one kernel that scatters
+the pool's vertices into bucket order as records of 4 floats (position; direction and
+d_vcm; throughput and d_vc) in flat arrays: a query reads a vertex from one cache line.
+A query reads the counts of the 8 cells that a sphere of radius r around z_j can
+touch and keeps, as a list of item ranges, those within r of z_j that hold items
+(the hash puts the 8 cells in distinct buckets: SmallVCM's can put two in one and
+count its items twice; a hash collision's foreign items lie farther than r).
+Its items are then visited in rounds of two symbolic loops: the first steps over
+them (a position read and a distance each) and keeps up to FOUND within r in a local
+array, the second evaluates the merge for those alone.  (One loop evaluating the
+whole merge under a mask for every item ran it for the 5 items outside r of every 6:
+a SIMD packet or a GPU warp runs a masked body as long as any of its lanes needs it.)
 Radius, cell size, bucket count and normalization are opaque: no kernel is
 compiled per pass or per radius.
 """
@@ -47,7 +52,6 @@ from . import mis
 from .strategies import StrategySet
 from .support import scene_bbox
 from .surface import finite, spectrum_nonzero
-from .vertices import gather
 from .optimizer import luminance
 
 # The default first radius, in pixel footprints at the scene's centre.  SmallVCM's
@@ -56,14 +60,19 @@ from .optimizer import luminance
 # wider than the view); scaled to small films it made merging there 30x slower (a query
 # visits every light vertex of 8 cells of side 2r).
 RADIUS_PIXELS = 1.5
-# Hash buckets per stored vertex the pool can hold.  A query visits every item of its
-# cells' buckets, a hash collision's too (skipped only after its position is read):
-# with one bucket per vertex (SmallVCM's), about 6 foreign items per query in the
-# diffuse box's pilot, beside its 25 own ones at the default radius.
+# Hash buckets per stored vertex the pool can hold (at least; rounded up to a power of
+# two).  A query visits every item of its cells' buckets, a hash collision's too
+# (skipped only after its position is read): with one bucket per vertex (SmallVCM's),
+# about 6 foreign items per query in the diffuse box's pilot, beside its 25 own ones
+# at the default radius.
 BUCKETS = 4
 # Lanes of an automatic pass with merging (settings.samples_per_pass 0): the radius
 # shrinks from pass to pass, so passes stay small (SmallVCM's are 1 spp).
 PASS_LANES = 1 << 16
+# Vertices within r that a query's scan collects before it merges them (merge.visit):
+# the diffuse box's queries find 9 within r on average, a 16-lane packet's largest
+# count 16 (Cornell box, 256x256, Veach's budget); more wait for another round.
+FOUND = 16
 
 
 def first_radius(scene: mi.Scene, sensor: mi.Sensor, radius: float) -> float:
@@ -100,17 +109,35 @@ def _cell(p, inv_cell) -> mi.Vector3i:
     return mi.Vector3i(dr.floor(p * inv_cell))
 
 
+def _padded(spectrum) -> list:
+    """A spectrum's channels padded to 3 (a record's first 3 floats)."""
+    channels = [spectrum[i] for i in range(dr.size_v(spectrum))]
+    return (channels + [mi.Float(0.0)] * 3)[:3]
+
+
+def _unpadded(v: mi.Vector4f) -> mi.Spectrum:
+    n = dr.size_v(mi.Spectrum)
+    return mi.Spectrum(*[v[i] for i in range(n)]) if n > 1 else mi.Spectrum(v.x)
+
+
 def _bucket(cell: mi.Vector3i, buckets) -> mi.UInt32:
-    """SmallVCM's spatial hash of a cell (Teschner et al. 2003's primes)."""
+    """A cell's bucket: the low 6 bits are the cell's coordinates modulo 4, the others
+    SmallVCM's spatial hash (Teschner et al. 2003's primes) of its block of 4x4x4 cells.
+    The 8 cells of a query lie in distinct buckets (they differ by 1 along some axis),
+    next to each other in memory where they share a block; ``buckets``: a power of two,
+    at least 64.  (SmallVCM's hash of the cell itself: 13% more items per query in the
+    Cornell box, foreign ones, and a test that two of the 8 cells share no bucket.)"""
     c = mi.Vector3u(cell)
-    return ((c.x * 73856093) ^ (c.y * 19349663) ^ (c.z * 83492791)) % buckets
+    b = c >> 2
+    low = (c.x & 3) | ((c.y & 3) << 2) | ((c.z & 3) << 4)
+    return ((((b.x * 73856093) ^ (b.y * 19349663) ^ (b.z * 83492791)) << 6) | low) & (buckets - 1)
 
 
 @dataclass
 class Photon:
-    """What a merge reads of a stored light vertex y_i, copied in bucket order when
-    the grid is built: a query then reads neighbouring records (one cell's), and 12
-    values instead of the 22 of the vertex record it would otherwise gather."""
+    """What a merge reads of a stored light vertex y_i (``HashGrid.photon``: the
+    grid's records in bucket order, 12 values of the 22 of the vertex's record; one
+    record of 4 floats more in a moment pass)."""
     w: mi.Vector3f          # toward y_{i-1} (world)
     beta: mi.Spectrum       # the light subpath's throughput arriving at y_i
     d_vcm: mi.Float         # MIS chains (mis.py)
@@ -130,8 +157,9 @@ class HashGrid:
     radius2: mi.Float       # r^2
     buckets: mi.UInt32      # the bucket count
     norm: mi.Float          # 1 / (pi r^2 N_L)
-    points: mi.Point3f = None   # positions in bucket order
-    photons: Photon = None      # merge records in bucket order (render passes)
+    points: mi.Float = None     # per vertex in bucket order: (position, s as bits)
+    photons: mi.Float = None    # per vertex: (w, d_vcm), (beta, d_vc) (render passes)
+    shares: mi.Float = None     # per vertex: (d_end, d_vm) (moment passes)
 
     @staticmethod
     def build(store, radius: float, light_subpaths: int, photons: bool = True,
@@ -145,33 +173,53 @@ class HashGrid:
         size = dr.gather(mi.UInt32, store.vertices.count, dr.zeros(mi.UInt32, capacity))
         # Every stored vertex that can merge: in the pool, on a surface.
         ok = (index < dr.minimum(size, capacity)) & ~items.record.in_medium
-        buckets = dr.opaque(mi.UInt32, BUCKETS * capacity)
+        n_buckets = max(1 << max(BUCKETS * capacity - 1, 1).bit_length(), 64)
+        buckets = dr.opaque(mi.UInt32, n_buckets)
         inv_cell = dr.opaque(mi.Float, 0.5 / radius)
         bucket = _bucket(_cell(items.record.p, inv_cell), buckets)
-        count = dr.zeros(mi.UInt32, BUCKETS * capacity)
+        count = dr.zeros(mi.UInt32, n_buckets)
         slot = dr.scatter_inc(count, bucket, ok)
         dr.eval(slot, count)            # the counter's results, in the kernel that counts
         start = dr.prefix_sum(count)    # exclusive
+        # One kernel puts every vertex in its place: it reads the pool in order and
+        # scatters (gathering the records in bucket order read each at random: 21
+        # values, frame included; 2.7x the time of this kernel on the CPU).
+        dest = dr.gather(mi.UInt32, start, bucket, ok) + slot
         order = dr.zeros(mi.UInt32, capacity)
-        dr.scatter(order, index, dr.gather(mi.UInt32, start, bucket, ok) + slot, ok)
-        dr.eval(order)
+        dr.scatter(order, index, dest, ok)
+        # Records of 4 floats each in one flat array (Dr.Jit's packet gather and scatter):
+        # a query reads a vertex's record from one cache line, not from one per field.
+        points = dr.zeros(mi.Float, 4 * capacity)
+        stage = mi.Float(dr.reinterpret_array(mi.Float, items.s)) if photons else mi.Float(0.0)
+        dr.scatter(points, mi.Vector4f(*items.record.p, stage), dest, ok)
         grid = HashGrid(order=order, start=start, count=count, inv_cell=inv_cell,
                         radius2=dr.opaque(mi.Float, radius * radius), buckets=buckets,
                         norm=dr.opaque(mi.Float, 1.0 / (math.pi * radius * radius
                                                         * max(light_subpaths, 1))),
-                        points=dr.gather(mi.Point3f, items.record.p, order))
+                        points=points)
         if photons:
-            rec = gather(items.record, order)
-            grid.photons = Photon(w=rec.sh_frame.to_world(rec.wi),
-                                  beta=dr.gather(type(items.beta), items.beta, order),
-                                  d_vcm=dr.gather(mi.Float, items.d_vcm, order),
-                                  d_vc=dr.gather(mi.Float, items.d_vc, order),
-                                  s=dr.gather(mi.UInt32, items.s, order))
+            w = items.record.sh_frame.to_world(items.record.wi)
+            beta = _padded(items.beta)
+            grid.photons = dr.zeros(mi.Float, 8 * capacity)
+            dr.scatter(grid.photons, mi.Vector4f(*w, items.d_vcm), 2 * dest, ok)
+            dr.scatter(grid.photons, mi.Vector4f(*beta, items.d_vc), 2 * dest + 1, ok)
             if shares:
-                grid.photons.d_end = dr.gather(mi.Float, items.d_end, order)
-                grid.photons.d_vm = dr.gather(mi.Float, items.d_vm, order)
-        dr.eval(grid.start, grid.points, grid.photons)
+                grid.shares = dr.zeros(mi.Float, 2 * capacity)
+                dr.scatter(grid.shares, mi.Vector2f(items.d_end, items.d_vm), dest, ok)
+        dr.eval(grid.start, grid.order, grid.points, grid.photons, grid.shares)
         return grid
+
+    def photon(self, pos, active) -> Photon:
+        """The merge record of the vertex at ``pos`` (bucket order)."""
+        a = dr.gather(mi.Vector4f, self.photons, 2 * pos, active)
+        b = dr.gather(mi.Vector4f, self.photons, 2 * pos + 1, active)
+        stage = dr.gather(mi.Vector4f, self.points, pos, active).w
+        y = Photon(w=mi.Vector3f(a.x, a.y, a.z), beta=_unpadded(b), d_vcm=a.w, d_vc=b.w,
+                   s=dr.reinterpret_array(mi.UInt32, stage))
+        if self.shares is not None:
+            e = dr.gather(mi.Vector2f, self.shares, pos, active)
+            y.d_end, y.d_vm = e.x, e.y
+        return y
 
     def neighbour(self, cell: mi.Vector3i, away: mi.Vector3i, k) -> mi.Vector3i:
         """The k-th of the 8 cells a sphere of radius r around a point of ``cell`` can
@@ -182,19 +230,17 @@ class HashGrid:
                                   dr.select((k & 1) != 0, away.z, 0))
 
 
-def _near(grid: HashGrid, pos, cell, p, active):
-    """Is the vertex at ``pos`` (bucket order) of the visited ``cell`` (not a hash
-    collision's) and within r of p?"""
-    y = dr.gather(mi.Point3f, grid.points, pos, active)
-    own = dr.all(_cell(y, grid.inv_cell) == cell)
-    return active & own & (dr.squared_norm(y - p) <= grid.radius2)
+def _near(grid: HashGrid, pos, p, active):
+    """Is the vertex at ``pos`` (bucket order) within r of p?"""
+    q = dr.gather(mi.Vector4f, grid.points, pos, active)
+    return active & (dr.squared_norm(mi.Point3f(q.x, q.y, q.z) - p) <= grid.radius2)
 
 
 def _merge_one(ctx, pos, active, state, v):
     """The weighted merge contribution of the light vertex at ``pos`` (bucket order) at
     camera vertex ``v`` (z_j), before beta_E and the normalization; in a moment pass
     also (luminance of the contribution, its u_pt, u_lt, u_vm times it)."""
-    y = gather(ctx.grid.photons, pos, active)
+    y = ctx.grid.photon(pos, active)
     w_y, beta_l, s = y.w, y.beta, y.s
     active &= ctx.strategies.merges(s - 1, state.depth)
     cos_g, ok = v.cosine(w_y)
@@ -233,58 +279,80 @@ def _sum(a, b):
 
 
 def visit(grid: HashGrid, store, p, active, value, zero, count: bool = False):
-    """The sum over stored light vertices within r of ``p`` of ``value(pos, near)``
-    (``pos``: the vertex's place in bucket order, ``grid.order[pos]`` its pool item)
-    (0 where not ``near``): one symbolic loop over the items of the buckets of the
-    cells a sphere of radius r around p touches (``_cells``), one item per iteration,
-    cell after cell of their mask (``dr.tzcnt``): an empty cell costs no iteration.
-    ``count``: also return the items each query visited (the merge's counted work)."""
+    """The sum over stored light vertices within r of ``p`` of ``value(pos, active)``
+    (``pos``: the vertex's place in bucket order, ``grid.order[pos]`` its pool item;
+    called for vertices within r only, where ``active``): the items of the cells
+    ``_cells`` lists, in rounds (see the module docstring): a scan loop collects up
+    to FOUND items within r into a local array, a merge loop sums ``value`` over them.
+    The items within r are summed in the order of a single loop over the cells' items.
+    ``count``: also return the items each query visited (the merge's counted work:
+    every item of its ranges, within r or not)."""
+    n = dr.width(p)
+    ranges, cells = _cells(grid, p, active)
+
+    def step(j, pos, end, items, found, buf, ranges):
+        """The item at ``pos``: into ``buf`` if within r; then the next item, the next
+        cell's first if this one's are done (j: the cell, of ``cells``)."""
+        near = _near(grid, pos, p, j < cells)
+        buf.write(pos, found, near)
+        pos = pos + 1
+        j = dr.select(pos >= end, j + 1, j)
+        on = (pos >= end) & (j < cells)
+        pos = dr.select(on, ranges.read(2 * j, on), pos)
+        end = dr.select(on, ranges.read(2 * j + 1, on), end)
+        return j, pos, end, items + 1, found + dr.select(near, 1, 0), buf, ranges
+
+    def merges(i, total, found, buf):
+        return i + 1, _sum(total, value(buf.read(i, i < found), i < found)), found, buf
+
+    def body(j, pos, end, items, total, ranges):
+        buf = dr.alloc_local(mi.UInt32, FOUND)
+        j, pos, end, items, found, buf, ranges = dr.while_loop(
+            (j, pos, end, items, dr.zeros(mi.UInt32, n), buf, ranges),
+            lambda j, pos, end, items, found, buf, ranges: (j < cells) & (found < FOUND),
+            step, labels=("j", "pos", "end", "items", "found", "buf", "ranges"),
+            label="merge candidates")
+        _, total, _, _ = dr.while_loop(
+            (dr.zeros(mi.UInt32, n), total, found, buf), lambda i, total, found, buf: i < found,
+            merges, labels=("i", "total", "found", "buf"), label="merges")
+        return j, pos, end, items, total, ranges
+
+    zeros = dr.zeros(mi.UInt32, n)
+    on = cells > 0
+    state = (zeros, ranges.read(zeros, on), ranges.read(zeros + 1, on), zeros, zero, ranges)
+    _, _, _, items, total, _ = dr.while_loop(
+        state, lambda j, *rest: j < cells, body,
+        labels=("j", "pos", "end", "items", "total", "ranges"), label="merge rounds")
+    return (total, items) if count else total
+
+
+def _cells(grid: HashGrid, p, active):
+    """The item ranges a query at ``p`` visits: of the 8 cells a sphere of radius r
+    around p can touch (HashGrid.neighbour), those within r of p whose bucket holds
+    items (their buckets are distinct, ``_bucket``: no item is counted twice, and a
+    collision's foreign items, of cells farther away, fail the distance test).
+    Returns a local array of (first, end) positions, cell after cell, and their count:
+    the query's loop reads its next range from it, not from the grid."""
     scaled = p * grid.inv_cell
     cell = mi.Vector3i(dr.floor(scaled))
     away = mi.Vector3i(dr.select(scaled - dr.floor(scaled) < 0.5, -1, 1))
     n = dr.width(p)
-
-    def load(k, mask, pos, end, visiting, on):
-        """Where ``on``: the first cell left in ``mask`` (k = 8 if none), its items."""
-        k = dr.select(on, dr.select(mask == 0, 8, mi.Int32(dr.tzcnt(mask))), k)
-        on &= k < 8
-        nxt = grid.neighbour(cell, away, dr.minimum(dr.maximum(k, 0), 7))
-        bucket = _bucket(nxt, grid.buckets)
-        first = dr.gather(mi.UInt32, grid.start, bucket, on)
-        end = dr.select(on, first + dr.gather(mi.UInt32, grid.count, bucket, on), end)
-        mask = dr.select(on, mask & ~(mi.UInt32(1) << mi.UInt32(dr.maximum(k, 0))), mask)
-        return k, mask, dr.select(on, first, pos), end, dr.select(on, nxt, visiting)
-
-    def body(k, mask, pos, end, visiting, total, items):
-        total = _sum(total, value(pos, _near(grid, pos, visiting, p, k < 8)))
-        pos = pos + 1
-        return load(k, mask, pos, end, visiting, pos >= end) + (total, items + 1)
-
-    zeros = dr.zeros(mi.UInt32, n)
-    state = load(mi.Int32(8), _cells(grid, cell, away, p, active), zeros, zeros,
-                 mi.Vector3i(cell), dr.full(mi.Bool, True, n))
-    *_, total, items = dr.while_loop(
-        state + (zero, zeros), lambda k, *rest: k < 8, body,
-        labels=("k", "mask", "pos", "end", "visiting", "total", "items"), label="merges")
-    return (total, items) if count else total
-
-
-def _cells(grid: HashGrid, cell, away, p, active) -> mi.UInt32:
-    """The cells a query at ``p`` (in ``cell``) visits, as a mask (bit k: the k-th of
-    the 8, HashGrid.neighbour): those within r of p whose bucket holds items.  Each
-    cell its sphere might touch and found empty was an iteration of the query's loop,
-    with the whole merge evaluated under its mask (8 per query; 3.1 queries and 94
-    items per camera sample in the diffuse box's pilot)."""
-    mask = dr.zeros(mi.UInt32, dr.width(p))
+    ranges = dr.alloc_local(mi.UInt32, 16)
+    cells = dr.zeros(mi.UInt32, n)
     size = dr.rcp(grid.inv_cell)
     for k in range(8):
         nxt = grid.neighbour(cell, away, k)
         lo = mi.Vector3f(nxt) * size                    # the cell's box [lo, lo + size]
         gap = dr.maximum(dr.maximum(lo - p, p - (lo + size)), 0.0)
         near = active & (dr.squared_norm(gap) <= grid.radius2 * 1.001)   # (rounding)
-        items = dr.gather(mi.UInt32, grid.count, _bucket(nxt, grid.buckets), near)
-        mask |= dr.select(near & (items > 0), mi.UInt32(1 << k), 0)
-    return mask
+        bucket = _bucket(nxt, grid.buckets)             # (the 8 buckets are distinct)
+        items = dr.gather(mi.UInt32, grid.count, bucket, near)
+        listed = near & (items > 0)
+        start = dr.gather(mi.UInt32, grid.start, bucket, listed)
+        ranges.write(start, 2 * cells, listed)
+        ranges.write(start + items, 2 * cells + 1, listed)
+        cells += dr.select(listed, 1, 0)
+    return ranges, cells
 
 
 def merge_at(ctx, store, state, v, active) -> mi.Spectrum:

@@ -30,10 +30,12 @@ step() {   # step NAME SECONDS COMMAND...: run with a time limit, log, report
     echo "== $name: exit $? in $((SECONDS - start)) s" | tee -a "$OUT/summary.txt"
     tail -n 25 "$OUT/$name.log"
 }
-profile() {   # Veach's BDPT, kernel by kernel, in the Cornell box and Veach's room; vcm
+profile() {   # Veach's BDPT, kernel by kernel, in the Cornell box and Veach's room; vcm's
+              # pass (issue 30): its camera walk with the merge queries, the grid's build
     $PY -m benchmarks.profile_pass --res "$RES" --spp 4
     $PY -m benchmarks.profile_pass --res "$RES" --spp 1 \
         --budget "light_paths=1 connections=all merging=true"
+    $PY benchmarks/experiments/merge_walk.py --res "$RES" --passes 3
     $PY -m benchmarks.profile_pass --res "$RES" --spp 4 --max-depth 7 \
         --scene "$EXT/veach-bidir/scene.xml"
 }
@@ -42,7 +44,8 @@ throughput() {   # samples per second against path, the same two scenes
     $PY -m benchmarks.throughput --no-cold --res "$RES" --spp 16 --max-depth 7 \
         --scene "$EXT/veach-bidir/scene.xml"
 }
-passes() {   # per-pass wall and kernel time; pass sizes, vcm and pssmlt against path
+passes() {   # per-pass wall and kernel time; pass sizes, vcm (issue 30's target: <= 1.5x
+             # veach's time per sample) and pssmlt against path
     $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 --repeats 2 --methods veach-2g,veach,veach-separate-calls,default
     $PY -m benchmarks.gpu_passes --res "$RES" --spp 4 --repeats 1 --methods veach,vcm,pssmlt
     $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 --repeats 2 --max-depth 7 \
@@ -72,7 +75,7 @@ frozen() {   # passes replaying recorded walks under CUDA (BDPT_FREEZE_CUDA=1): 
 }
 export -f profile throughput passes breakdown divergence frozen; export PY RES EXT
 step calibrate 90 $PY -m bdpt_drjit calibrate --variant "$BDPT_VARIANT"
-step profile 40 profile
+step profile 60 profile
 step throughput 100 throughput
 step passes 150 passes
 step breakdown 40 breakdown

@@ -36,7 +36,14 @@ def _profiled(run) -> dict:
         history = dr.kernel_history()
     backend = dr.JitBackend.CUDA if mi.variant().startswith("cuda") else dr.JitBackend.LLVM
     jit = [e for e in history if e["type"] == dr.KernelType.JIT]
+    # The two largest kernels are the walks (light, camera); what runs between them is
+    # the hash grid's build where the pass merges (merge.HashGrid.build).
+    kernels = [i for i, e in enumerate(history) if e["type"] == dr.KernelType.JIT]
+    walks = sorted(sorted(kernels, key=lambda i: -(history[i].get("operation_count") or 0))[:2])
+    between = history[walks[0] + 1:walks[1]] if len(walks) == 2 else []
     return {"lanes": lanes, "launches": Counter(e["type"].name for e in history), "jit": jit,
+            "between_ms": sum(e.get("execution_time", 0.0) for e in between),
+            "between": len(between),
             "ms": sum(e.get("execution_time", 0.0) for e in jit),
             "peak": dr.detail.malloc_watermark(backend)}
 
@@ -84,6 +91,8 @@ def main(argv=None) -> None:
                                                        a.spp, a.max_depth, a.budget))
     bdpt = _profiled(bdpt_pass)
     _report("bdpt pass", bdpt)
+    print("    between the walks (with merging: the hash grid's build): %.2f ms in %d launches"
+          % (bdpt["between_ms"], bdpt["between"]))
     rays, stored = r.rays / (r.pixels * r.spp), r._vertices_per_path
     from bdpt_drjit.vertices import RECORD_BYTES
     print("    %.1f rays per sample; %.2f stored light vertices per light subpath, %d bytes "

@@ -65,6 +65,24 @@ def test_grid_finds_each_vertex_within_r_once(radius):
     assert within.sum() >= 100         # the queries do find vertices
 
 
+def test_a_querys_cells_lie_in_distinct_buckets():
+    """The 8 cells a query visits hash into 8 distinct buckets (merge._bucket), at any
+    bucket count the grid uses: a query then visits a bucket once, and tells a
+    collision's foreign items by their distance alone (merge.visit has no own-cell
+    test: with two of the 8 cells in one bucket it would count its items twice)."""
+    rng = np.random.default_rng(5)
+    cells = rng.integers(-2000, 2000, (4000, 3)).astype(np.int32)
+    cell = mi.Vector3i(*[cells[:, i] for i in range(3)])
+    grid = SimpleNamespace(neighbour=merge.HashGrid.neighbour.__get__(object()))
+    for buckets in (64, 1 << 14, 1 << 22):
+        for signs in ((-1, -1, -1), (1, 1, 1), (1, -1, 1)):
+            away = mi.Vector3i(*[np.full(len(cells), s, np.int32) for s in signs])
+            b = np.stack([merge._bucket(grid.neighbour(cell, away, k), mi.UInt32(buckets)).numpy()
+                          for k in range(8)], 1)
+            assert b.max() < buckets
+            assert all(len(set(row)) == 8 for row in b)
+
+
 # -- kernels ------------------------------------------------------------------------------
 def test_passes_and_radii_compile_no_kernel():
     """Each pass merges at its own radius, and a new seed or radius compiles nothing:
