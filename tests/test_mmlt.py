@@ -12,6 +12,9 @@
 * No kernel is compiled per iteration or per seed; the stress scenes render finite; fog,
   a thin lens with a crop and an orthographic camera agree with BDPT (tests/test_mlt.py,
   for both kinds).
+* multiplex="auto" takes a length per chain (and large steps of 0.3) on the box, a
+  strategy (and 0.1) on the door; the first stage's blocks shrink with its effective
+  sample size.
 * The plugin, the API and the CLI; refusals."""
 from __future__ import annotations
 
