@@ -25,10 +25,10 @@ def render(scene, spp: int | None = None, seed: int = 0, sensor=0,
     ``cluster``: render the passes on Ray workers (``"local:N"``, ``"auto"`` or a Ray
     address; ``scene`` must then be a file path): the same estimator (cluster.py).
     ``integrator="pssmlt"``: Metropolis light transport over BDPT samples (mlt.py);
-    ``integrator="mlt"``: multiplexed MLT, a strategy per chain (mmlt.py, needs a
-    finite max_depth); ``spp`` is then the mean mutations per pixel, and their own
-    settings are ``mlt.MLT_PARAMS`` with max_depth, rr_depth, mis, light_image,
-    hide_emitters.
+    ``integrator="mlt"``: multiplexed MLT, a strategy or a path length per chain
+    (mmlt.py, needs a finite max_depth); ``spp`` is then the mean mutations per pixel,
+    and their own settings are ``mlt.MLT_PARAMS`` (``mlt``: and ``mlt.MMLT_PARAMS``)
+    with max_depth, rr_depth, mis, light_image, hide_emitters.
     """
     if integrator not in ("bdpt", "pssmlt", "mlt"):
         raise ValueError("bdpt: unknown integrator %r (bdpt, mlt or pssmlt)" % (integrator,))

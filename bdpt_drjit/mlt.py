@@ -2,7 +2,8 @@
 thousands of Markov chains, one per lane.
 
     first stage      (``mlt``, two-stage) the image's brightness L per 8x8 block
-                     from samples of their own: the chains' target is f / L
+                     (smaller where its samples allow: stage_block) from samples
+                     of their own: the chains' target is f / L
     bootstrap        B independent BDPT samples (hashed primary samples, pss.py):
                      b = mean f, the image's normalization; chains start at
                      samples drawn in proportion to f (resampling)
@@ -83,14 +84,21 @@ MLT_PARAMS = {"mutations_per_pixel": 0, "large_step_probability": 0.3,
               "bootstrap_samples": 0, "chains": 0, "large_step_mis": True,
               "direct_samples": 0}
 # MMLT's own (mmlt.py): what a chain fixes besides its path length: "strategy" (its
-# (s, t) from a stream of its own, Hachisuka 2014, pbrt) or "length" (every strategy
-# of its length); and its default large-step probability, 0.1 (pbrt's is 0.3): an
-# MMLT large step is rarely accepted (door, 0.05 gap: 0.6%, PSSMLT's 10%), and at
-# equal time 0.1 gave 0.97x the default bdpt's relMSE on the door's 0.05 gap against
-# 0.3's 1.20x, 0.82x against 0.96x on its 0.01 gap (2 runs each), the box 23.9x
-# against 22.3x (benchmarks/RESULTS.md).
-MMLT_PARAMS = {"multiplex": "strategy", "large_step_probability": 0.1, "two_stage": True}
-MULTIPLEX = ("strategy", "length")
+# (s, t) from a stream of its own, Hachisuka 2014, pbrt), "length" (every strategy
+# of its length) or "auto" (mmlt.EASY_ESS: "length" where the bootstrap finds the
+# chains' light spread over many strategies of most samples, the diffuse box; else
+# "strategy"); and its default large-step probability, -1: automatic, by the
+# multiplex (MMLT_LARGE_STEP).  With "strategy" 0.1 (pbrt's is 0.3): an MMLT large
+# step is rarely accepted (door, 0.05 gap: 0.6%, PSSMLT's 10%), and at equal time 0.1
+# gave 0.97x the default bdpt's relMSE on the door's 0.05 gap against 0.3's 1.20x,
+# 0.82x against 0.96x on its 0.01 gap (2 runs each), the box 23.9x against 22.3x.
+# With "length" 0.3 (Kelemen's, pbrt's): a chain's large step is a BDPT sample of its
+# length, accepted 31% of the time on the diffuse box (strategy: 11%), where 0.3
+# against 0.1 gave relMSE 0.00143 against 0.00158 (seeds 1-3) and 0.00141 against
+# 0.00152 (seeds 4-6) at 60 iterations of 65536 chains (benchmarks/RESULTS.md).
+MMLT_PARAMS = {"multiplex": "auto", "large_step_probability": -1.0, "two_stage": True}
+MULTIPLEX = ("strategy", "length", "auto")
+MMLT_LARGE_STEP = {"strategy": 0.1, "length": 0.3}
 # Automatic chains and bootstrap (automatic_plan).  The image's error is mostly the
 # chains' start: a chain forgets its bootstrap state only through accepted large steps
 # (door-ajar.xml: large steps accepted 10%, small steps 51%; about one large step
@@ -146,7 +154,15 @@ BOOTSTRAP_LANES = 1 << 16       # lanes of a bootstrap batch (at least the chain
 # (ESS ~1.4K): 65536 gave relMSE 0.064, 16384 0.078, 262144 0.055, 524288 0.055
 # (without two-stage 0.065); the diffuse box stops after 16384 (ESS ~15K), where a
 # stage of its 65536 planned chains cost a fifth of its iterations in 5 s.
+# The blocks are smaller where the stage has the samples for them (``stage_block``):
+# the smallest of STAGE_BLOCK, STAGE_BLOCK / 2, ..., 1 pixels whose blocks hold at
+# least STAGE_PER_BLOCK effective samples on average (ESS x block^2 / pixels; 8x8
+# blocks of a 64x64 film at STAGE_ESS).  The diffuse box's stage (16384 samples, ESS
+# ~15K at 64x64) then has 4x4 blocks: relMSE at 60 iterations (65536 chains, seeds
+# 1-3) 0.00180 -> 0.00158, where 4x4 blocks on the door's 0.01 gap (ESS ~1.4K) gave
+# 0.0621 / 0.0627 against 8x8's 0.0562 / 0.0546; the door's stages keep 8x8.
 STAGE_BLOCK, STAGE_FLOOR, STAGE_LANES, STAGE_ESS = 8, 0.1, 1 << 14, 2048
+STAGE_PER_BLOCK = 32
 BDPT_PARAMS = ("max_depth", "rr_depth", "mis", "light_image", "hide_emitters")
 # Separate direct samples (``direct_samples``, MLTRenderer._separate_direct): paths of up to
 # DIRECT_LENGTH edges (emitters seen directly, direct illumination) are rendered by
@@ -338,9 +354,10 @@ def mlt_settings(values: dict, name: str = "pssmlt") -> tuple[dict, dict]:
     if min(mlt["mutations_per_pixel"], mlt["bootstrap_samples"], mlt["chains"]) < 0:
         raise ValueError("%s: mutations_per_pixel, bootstrap_samples and chains must be "
                          ">= 0 (0: the sample count; automatic)" % name)
-    if not 0.0 <= mlt["large_step_probability"] <= 1.0:
-        raise ValueError("%s: large_step_probability must lie in [0, 1], got %g"
-                         % (name, mlt["large_step_probability"]))
+    p_large = mlt["large_step_probability"]
+    if not (0.0 <= p_large <= 1.0 or (name == "mlt" and p_large == -1.0)):
+        raise ValueError("%s: large_step_probability must lie in [0, 1]%s, got %g"
+                         % (name, " (-1: automatic)" if name == "mlt" else "", p_large))
     return mlt, bdpt
 
 
@@ -413,6 +430,7 @@ class MLTRenderer:
         self.direct_film = FilmAccumulator(film, coalesce=False)
         # two-stage: 1 / L per pixel (``_first_stage``), and the first stage's samples
         self.two_stage, self.pixel_weight, self.stage_samples = mlt.get("two_stage", False), None, 0
+        self.stage_block = 0             # the first stage's blocks (a side, pixels)
         self.film_steps = pss.film_steps(int(max(film.crop_size())))
         frozen.settle(self.scene, self.sensor)     # before any walk (frozen.settle)
         self._configure()
@@ -544,9 +562,10 @@ class MLTRenderer:
         """1 / L per pixel up to a constant (two-stage; STAGE_*): the image of BDPT
         samples on keys of their own (the target must not depend on the samples that
         estimate b and pick the start states), in batches until their effective sample
-        size reaches STAGE_ESS or max(planned chains, BOOTSTRAP_LANES) are drawn.  Their
-        records of the direct lengths also go on the direct film, as the bootstrap's
-        (``stage_samples`` counts them)."""
+        size reaches STAGE_ESS or max(planned chains, BOOTSTRAP_LANES) are drawn, on
+        blocks of ``stage_block`` pixels (a side).  Their records of the direct lengths
+        also go on the direct film, as the bootstrap's (``stage_samples`` counts
+        them)."""
         keys = self._stream_keys(0xB3)
         total = max(self.chains, BOOTSTRAP_LANES)
         size = [int(v) for v in self.sensor.film().crop_size()]
@@ -566,7 +585,10 @@ class MLTRenderer:
             done += n
         self.images = None
         self.stage_samples = done
-        return device_array(mi.Float, pixel_weights(lum.reshape(size[1], size[0])).ravel())
+        self.stage_block = stage_block(sums[0] ** 2 / sums[1] if sums[1] > 0 else 0.0,
+                                       size[0] * size[1])
+        return device_array(mi.Float, pixel_weights(lum.reshape(size[1], size[0]),
+                                                    self.stage_block).ravel())
 
     # -- start-up ---------------------------------------------------------------------
     def bootstrap(self):
@@ -834,6 +856,7 @@ class MLTRenderer:
                                    "large_step_probability": self.p_large,
                                    "large_step_mis": self.large_step_mis,
                                    "two_stage": self.two_stage,
+                                   "stage_block": self.stage_block,
                                    "bootstrap_samples": self.bootstrap_samples,
                                    "bootstrap_time": self.bootstrap_time,
                                    "start_states": self.start_states,
@@ -869,12 +892,23 @@ def _pixel_sums(records: Records, size, lanes: int) -> tuple[np.ndarray, np.ndar
             np.bincount(lane[order], weights=value[order], minlength=lanes))
 
 
-def pixel_weights(lum: np.ndarray) -> np.ndarray:
+def stage_block(ess: float, pixels: int) -> int:
+    """The side of the first stage's blocks for a stage of effective sample size
+    ``ess`` on a film of ``pixels``: the smallest power of two up to STAGE_BLOCK whose
+    blocks hold at least STAGE_PER_BLOCK effective samples on average, else
+    STAGE_BLOCK."""
+    block = STAGE_BLOCK
+    while block > 1 and ess * (block // 2) ** 2 >= STAGE_PER_BLOCK * pixels:
+        block //= 2
+    return block
+
+
+def pixel_weights(lum: np.ndarray, block: int = STAGE_BLOCK) -> np.ndarray:
     """1 / L for a first-stage luminance image (``_first_stage``): means over blocks of
-    STAGE_BLOCK x STAGE_BLOCK pixels, floored at STAGE_FLOOR x their mean, over their
-    mean (a black image: 1 everywhere)."""
+    ``block`` x ``block`` pixels (``stage_block``), floored at STAGE_FLOOR x their mean,
+    over their mean (a black image: 1 everywhere)."""
     h, w = lum.shape
-    k = STAGE_BLOCK
+    k = block
     hb, wb = -(-h // k), -(-w // k)
     pad = ((0, hb * k - h), (0, wb * k - w))
     sums = np.pad(np.nan_to_num(lum.astype(np.float64)), pad)

@@ -58,7 +58,10 @@ cells of length 3 up only, and c_k of k <= 2 is 0.
 
 ``multiplex="length"``: a chain fixes only its length k and evaluates every strategy
 of it with its MIS weight, f_k(u) = Y(sum_s w_{s,t} C_{s,t}(u)) (the narrower form of
-the issue's "at least the path length"; u_c is then unused).
+the issue's "at least the path length"; u_c is then unused).  ``multiplex="auto"``
+(the default) takes "length" where the bootstrap's cells of the chains' lengths have
+an effective sample size of at least EASY_ESS x its samples, else "strategy"
+(``_choose_multiplex``).
 """
 from __future__ import annotations
 
@@ -72,10 +75,22 @@ from . import pss
 from .backend import device_array
 from .chain_strategies import ChainStrategies  # noqa: F401  (mmlt.ChainStrategies)
 from .mlt import (BOOTSTRAP_LANES, DIRECT_LENGTH, DIRECT_SHARE, ESS_STOP,  # noqa: F401
-                  MIN_BOOTSTRAP, MIN_DIRECT_LANES, Chains, DirectLuminance, Evaluation,
-                  MLTRenderer, chains_for_ess)
+                  MIN_BOOTSTRAP, MIN_DIRECT_LANES, MMLT_LARGE_STEP, Chains,
+                  DirectLuminance, Evaluation, MLTRenderer, chains_for_ess)
 from .optimizer import luminance
 
+# multiplex="auto" (``_choose_multiplex``): "length" where the effective sample size
+# (sum L)^2 / sum L^2 of the bootstrap's cells (k, s) of the chains' lengths is at
+# least EASY_ESS x its samples: most samples carry the chains' light in several
+# strategies, and a chain that evaluates every strategy of its length renders a
+# sample's whole contribution of that length; else "strategy", whose walks stop at
+# its vertices (half the cost) and whose chains stay on the strategy that carries a
+# rare path.  Bootstraps of 64x64 renders, seed 1 (2026-11-27): the diffuse box 1.52
+# (past its direct lengths), the door ajar's 0.05 gap 0.19, its 0.01 gap 0.009.  The
+# box at 60 iterations (65536 chains, seeds 1-3): relMSE 0.00325 (strategy) against
+# 0.00174 (length), for 1.4x the time per iteration; the door's 0.05 gap (before the
+# film steps) 0.059 against 0.052 for 2x the time per mutation (benchmarks/RESULTS.md).
+EASY_ESS = 0.5
 
 
 def _per_depth(values: np.ndarray) -> mi.Float:
@@ -146,6 +161,7 @@ class MMLTRenderer(MLTRenderer):
 
     def __init__(self, scene: mi.Scene, sensor=0, seed: int = 0, **params):
         self.b_depths, self.b_plain, self.chains_per_depth = None, None, None
+        self.multiplex_ess = 0.0        # _choose_multiplex's measure
         super().__init__(scene, sensor=sensor, seed=seed, **params)
 
     def _configure(self) -> None:
@@ -153,6 +169,11 @@ class MMLTRenderer(MLTRenderer):
             raise ValueError("mlt: needs a finite max_depth >= 1 (MMLT runs its chains "
                              "per path length; pbrt's default is 5), or use pssmlt")
         self.dims["tech_u"] = 1
+        # large_step_probability -1: the multiplex's (mlt.MMLT_LARGE_STEP), set with
+        # the multiplex (``_choose_multiplex``); "strategy"'s until then
+        self.large_step_auto = self.p_large < 0.0
+        if self.large_step_auto:
+            self.p_large = MMLT_LARGE_STEP.get(self.multiplex, MMLT_LARGE_STEP["strategy"])
 
 
     def _evaluate_vectors(self, lanes: int, keys, identity: mi.UInt32, x: dict) -> Evaluation:
@@ -198,6 +219,7 @@ class MMLTRenderer(MLTRenderer):
         self.b_direct = float(self.b_plain[:DIRECT_LENGTH].sum())
         separate = self._separate_direct(b)
         f_np, ess = targets[separate]
+        self._choose_multiplex(ess)
         if separate:
             self.b_depths[:DIRECT_LENGTH] = 0.0
         b_chains = self.b_chains = float(self.b_depths.sum())
@@ -208,6 +230,19 @@ class MMLTRenderer(MLTRenderer):
         if b_chains <= 0.0:                     # direct light only
             return b, None
         return b, self._start(keys, self._resample(f_np))
+
+    def _choose_multiplex(self, ess: float) -> None:
+        """``multiplex="auto"``: "length" where ``ess``, the effective sample size of
+        the bootstrap's strategy cells of the chains' lengths, is at least EASY_ESS x
+        its samples, else "strategy" (EASY_ESS); and an automatic large-step
+        probability, the multiplex's (mlt.MMLT_LARGE_STEP).  Before the start states,
+        whose cells are the chosen multiplex's; the seed's bootstrap decides (no
+        clock)."""
+        self.multiplex_ess = ess / max(self.bootstrap_samples, 1)
+        if self.multiplex == "auto":
+            self.multiplex = "length" if self.multiplex_ess >= EASY_ESS else "strategy"
+        if self.large_step_auto:
+            self.p_large = MMLT_LARGE_STEP[self.multiplex]
 
     def _bootstrap_targets(self, keys, count: int):
         """Per bootstrap sample 0 .. n - 1 (every coordinate hashed), with and without
@@ -264,7 +299,8 @@ class MMLTRenderer(MLTRenderer):
 
     def _cell_table(self):
         """(k, s) of the start states' cells: a strategy each, or (``multiplex="length"``)
-        a length each (s = 0)."""
+        a length each (s = 0); a strategy each in the bootstrap of ``"auto"``, which
+        is chosen from them (``_choose_multiplex``)."""
         depths = self.settings.max_depth
         if self.multiplex == "length":
             return np.arange(1, depths + 1), np.zeros(depths, dtype=int)
@@ -334,6 +370,8 @@ class MMLTRenderer(MLTRenderer):
 
     def result(self):
         res = super().result()
+        res.stats["multiplex"] = self.multiplex
+        res.stats["multiplex_ess"] = self.multiplex_ess
         if self.chains_per_depth is not None:
             res.stats["b_depths"] = [float(v) for v in self.b_depths]
             res.stats["b_luminance_depths"] = [float(v) for v in self.b_plain]

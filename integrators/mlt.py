@@ -31,8 +31,9 @@ variants, heterogeneous media, ``mis=lafortune``, and the BDPT budget parameters
      - Mean mutations per pixel; ``spp`` of ``mi.render`` overrides it (Default: 0, the
        sensor's sample count)
    * - large_step_probability
-     - Probability of a large step (Default: 0.1, where pbrt and ``pssmlt`` take 0.3:
-       MMLT's large steps are rarely accepted; Mitsuba 0.6: ``pLarge``)
+     - Probability of a large step; -1 = automatic: 0.1 with ``multiplex`` ``strategy``
+       (its large steps are rarely accepted), 0.3 with ``length`` (as pbrt and
+       ``pssmlt``) (Default: -1; Mitsuba 0.6: ``pLarge``)
    * - bootstrap_samples
      - Independent samples, over all path lengths, that estimate each b_k and seed the
        chains; 0 = max(100000, 8 x chains) (Default: 0; Mitsuba 0.6:
@@ -45,8 +46,10 @@ variants, heterogeneous media, ``mis=lafortune``, and the BDPT budget parameters
        most 2x the bootstrap's effective sample size (Default: 0)
    * - multiplex
      - What a chain fixes besides its path length: ``strategy`` (its (s, t), from a
-       stream of its own: Hachisuka 2014, pbrt) or ``length`` (every strategy of its
-       length, each with its MIS weight) (Default: strategy)
+       stream of its own: Hachisuka 2014, pbrt), ``length`` (every strategy of its
+       length, each with its MIS weight) or ``auto``: ``length`` where the bootstrap's
+       strategies of the chains' lengths have an effective sample size of at least
+       half its samples (an easy scene), else ``strategy`` (Default: auto)
    * - direct_samples
      - Paths of 1 and 2 edges (emitters seen directly, direct illumination) by this
        many independent BDPT samples per pixel per iteration, and the chains only on
@@ -57,7 +60,8 @@ variants, heterogeneous media, ``mis=lafortune``, and the BDPT budget parameters
    * - two_stage
      - Two-stage MLT (Hoberock and Hart 2010): a first stage of independent samples
        (one per planned chain, at least 65536) estimates the image's brightness L on
-       blocks of 8 x 8 pixels, and the chains' target is their luminance over L of the
+       blocks of 8 x 8 pixels (smaller where its samples allow: at least 32 effective
+       samples a block), and the chains' target is their luminance over L of the
        record's pixel, so that they spend their time evenly over dark and bright
        pixels (Default: true; Mitsuba 0.6: ``twoStage``)
    * - max_depth

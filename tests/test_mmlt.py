@@ -12,6 +12,9 @@
 * No kernel is compiled per iteration or per seed; the stress scenes render finite; fog,
   a thin lens with a crop and an orthographic camera agree with BDPT (tests/test_mlt.py,
   for both kinds).
+* multiplex="auto" takes a length per chain (and large steps of 0.3) on the box, a
+  strategy (and 0.1) on the door; the first stage's blocks shrink with its effective
+  sample size.
 * The plugin, the API and the CLI; refusals."""
 from __future__ import annotations
 
@@ -124,6 +127,46 @@ def test_automatic_bootstrap_stops_at_the_chains_effective_size():
     assert auto.result().stats["bootstrap_samples"] == 131072
 
 
+def test_automatic_multiplex_follows_the_bootstraps_spread():
+    """multiplex="auto" (the default) takes "length", with large steps of probability
+    0.3, where the effective sample size of the bootstrap's strategy cells of the
+    chains' lengths is at least mmlt.EASY_ESS x its samples (the box: most samples
+    light several strategies), else "strategy" with 0.1 (the door with a narrow gap:
+    few samples carry light); the render is then the one of that choice given
+    explicitly."""
+    from bdpt_drjit import mlt
+    kw = dict(seed=2, mutations_per_pixel=8, bootstrap_samples=16384, chains=512, max_depth=5)
+    box = _box()
+    auto = mmlt.MMLTRenderer(box, **kw)
+    fixed = mmlt.MMLTRenderer(box, multiplex="length", large_step_probability=0.3, **kw)
+    assert auto.multiplex == "length" and auto.p_large == mlt.MMLT_LARGE_STEP["length"] == 0.3
+    assert auto.multiplex_ess >= mmlt.EASY_ESS
+    for r in (auto, fixed):
+        r.run_iteration()
+    assert np.allclose(auto.result().image, fixed.result().image, rtol=1e-5, atol=1e-8)
+    stats = auto.result().stats
+    assert stats["multiplex"] == "length" and stats["large_step_probability"] == 0.3
+    door = mi.load_file(str(SCENES / "door-ajar.xml"), resx=16, resy=16, gap_start=0.49)
+    hard = mmlt.MMLTRenderer(door, **kw)
+    assert hard.multiplex == "strategy" and hard.p_large == 0.1
+    assert hard.multiplex_ess < mmlt.EASY_ESS
+    given = mmlt.MMLTRenderer(box, large_step_probability=0.2, **kw)   # kept where given
+    assert given.multiplex == "length" and given.p_large == 0.2
+
+
+def test_stage_blocks_shrink_with_the_stages_effective_size():
+    """mlt.stage_block: the first stage's blocks are the smallest power of two up to
+    STAGE_BLOCK pixels whose blocks hold at least STAGE_PER_BLOCK effective samples on
+    average; pixel_weights of blocks of 1 pixel are per pixel."""
+    from bdpt_drjit import mlt
+    px = 64 * 64
+    assert mlt.STAGE_BLOCK == 8 and mlt.STAGE_PER_BLOCK == 32
+    assert [mlt.stage_block(e, px) for e in (0.0, 2048, 8191, 8192, 32768, 131072, 1e9)] \
+        == [8, 8, 8, 4, 2, 1, 1]
+    lum = np.arange(1.0, 13.0).reshape(3, 4)
+    assert np.allclose(mlt.pixel_weights(lum, 1), lum.mean() / lum)
+
+
 def test_pixel_weights_are_first_stage_block_means_floored():
     """mlt.pixel_weights: 1 / L over blocks of STAGE_BLOCK^2 pixels (partial blocks at
     the edges), floored at STAGE_FLOOR x the mean, over their mean; 1 where black."""
@@ -221,9 +264,9 @@ def test_plugin_api_and_refusals():
     assert "MMLT" in integ.to_string() and "multiplexed" in type(integ).__doc__.lower()
     a = mi.render(scene, integrator=integ, spp=8, seed=4).numpy()
     b = bdpt_drjit.render(scene, spp=8, seed=4, integrator="mlt", max_depth=5,
-                          bootstrap_samples=4096, chains=256)
+                          bootstrap_samples=4096, chains=256, large_step_probability=0.1)
     assert b.stats["integrator"] == "mlt" and len(b.stats["b_depths"]) == 5
-    assert b.stats["large_step_probability"] == 0.1     # MMLT's default (pssmlt: 0.3)
+    assert b.stats["large_step_probability"] == 0.1
     assert np.allclose(a, b.image, rtol=1e-4, atol=1e-6)
     with pytest.raises(ValueError, match="finite max_depth"):
         mmlt.MMLTRenderer(scene, max_depth=-1)
@@ -231,8 +274,10 @@ def test_plugin_api_and_refusals():
         mmlt.MMLTRenderer(scene, max_depth=5, light_paths=1)
     with pytest.raises(ValueError, match="lafortune"):
         mmlt.MMLTRenderer(scene, max_depth=5, mis="lafortune")
-    with pytest.raises(ValueError, match="multiplex must be one of strategy, length"):
+    with pytest.raises(ValueError, match="multiplex must be one of strategy, length, auto"):
         mmlt.MMLTRenderer(scene, max_depth=5, multiplex="technique")
+    with pytest.raises(ValueError, match=r"large_step_probability must lie in \[0, 1\] \(-1"):
+        mmlt.MMLTRenderer(scene, max_depth=5, large_step_probability=-0.5)
     with pytest.raises(ValueError, match="pssmlt: unknown or unsupported parameter 'multiplex'"):
         bdpt_drjit.render(scene, spp=4, integrator="pssmlt", multiplex="length")
 

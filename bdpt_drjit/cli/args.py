@@ -200,9 +200,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--integrator", choices=("pssmlt", "mlt"), default="pssmlt",
                    help="pssmlt (default: every strategy per sample) or mlt (multiplexed: "
                    "one strategy per chain and path length; needs a finite --max-depth)")
-    t.add_argument("--multiplex", choices=("strategy", "length"),
+    t.add_argument("--multiplex", choices=("strategy", "length", "auto"),
                    help="mlt: what a chain fixes besides its path length: its strategy "
-                   "(default, as pbrt) or all strategies of its length")
+                   "(as pbrt), all strategies of its length, or auto (default: length "
+                   "where the bootstrap finds the light spread over many strategies)")
     t.add_argument("--no-two-stage", dest="two_stage", action="store_false", default=None,
                    help="mlt: the chains' target is the luminance (default: over the "
                    "brightness of the record's pixel, from a first stage)")
@@ -214,7 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
                    type=int_at_least(1), help="mean mutations per pixel (default: the "
                    "scene's sample count)")
     t.add_argument("--large-step-probability", type=float, metavar="P",
-                   help="probability of a large step (default 0.3; mlt: 0.1)")
+                   help="probability of a large step (default 0.3; mlt: 0.1 where a chain "
+                   "has a strategy, 0.3 where it has every strategy of its length)")
     t.add_argument("--bootstrap-samples", type=int_at_least(1), metavar="N",
                    help="independent samples estimating b and seeding the chains (default 0: "
                    "max(100000, 8 x chains))")
