@@ -690,10 +690,21 @@ class Renderer:
         ctx = self._context(index, rays, sampler, lanes, spp)
         timer.lap()
 
-        # Stages 2 and 3: light subpaths (stored light vertices, t = 1 splats), the
-        # hash grid where merging, camera subpaths with every strategy t >= 2.
-        store, light_rays, cam, (light_seconds, grid_seconds) = self._walks(
-            ctx, rays, index, spp, timer)
+        light_seconds = grid_seconds = 0.0
+        if self._walks_fused(ctx, timer):
+            # Stages 2 and 3 in one recording, where no host step lies between them.
+            store, light_rays, cam = self._fused_walks(ctx, rays, index, spp)
+        else:
+            # Stage 2: light subpaths: stored light vertices and t = 1 splats.
+            store, light_rays = self._light_subpaths(ctx, index, spp)
+            light_seconds = timer.lap()
+            if ctx.merge_radius > 0 and store is not None:
+                ctx.grid = merge.HashGrid.build(store, ctx.merge_radius, ctx.light_count,
+                                                shares=ctx.moments is not None)
+            grid_seconds = timer.lap()
+
+            # Stage 3: camera subpaths, with every strategy t >= 2.
+            cam = self._camera_walk(ctx, rays, store)
         # Every output the pass reads, in the walk's one kernel: an output evaluated
         # later would run the whole walk again (the pilot's slot counts did: 23 ms).
         dr.eval(cam.radiance, cam.hit, cam.rays, cam.slot, cam.specular_z1)
@@ -863,21 +874,6 @@ class Renderer:
         if ctx.budget.caches:
             store.order = store.ordered()
         return store, light_rays
-
-    def _walks(self, ctx, rays, index: int, spp: int, timer):
-        """Stages 2 and 3: (light vertex store, light walk's rays, camera walk's
-        state, the timed seconds of the light walk and the grid).  One recording
-        where no host step lies between the walks (``_walks_fused``)."""
-        if self._walks_fused(ctx, timer):
-            return self._fused_walks(ctx, rays, index, spp) + ((0.0, 0.0),)
-        store, light_rays = self._light_subpaths(ctx, index, spp)
-        light_seconds = timer.lap()
-        if ctx.merge_radius > 0 and store is not None:
-            ctx.grid = merge.HashGrid.build(store, ctx.merge_radius, ctx.light_count,
-                                            shares=ctx.moments is not None)
-        grid_seconds = timer.lap()
-        return store, light_rays, self._camera_walk(ctx, rays, store), (light_seconds,
-                                                                         grid_seconds)
 
     @staticmethod
     def _walks_fused(ctx, timer) -> bool:
