@@ -10,9 +10,6 @@
                                                          (connect.py)
         film               film.FilmAccumulator          camera block, then splats
 
-The walks replay recordings (frozen.py); where nothing runs on the host between them
-(no hash grid, no vertex cache's order), the two walks are one recording.
-
 Each camera sample i is paired with light subpath i (N_L = N_C), so the light image
 is normalized by W*H / (total camera samples) and MIS uses N_L / N_C = 1.
 Passes split the work so that a pass's state and stored light vertices stay under
@@ -248,18 +245,6 @@ def _recorded_camera_walk(ctx, rays, store):
         ctx.moments.allocate()
     cam = trace_camera_subpaths(ctx, rays, store)
     return cam, None if ctx.moments is None else ctx.moments.buffers()
-
-
-def _recorded_walks(light, ctx, rays, store):
-    """Stages 2 and 3 as one recording (Renderer._fused_walks): the light walk's
-    returns, then the camera walk's."""
-    light_rays, buffers = _recorded_light_walk(light, store)
-    cam, moments = _recorded_camera_walk(ctx, rays, store)
-    return light_rays, buffers, cam, moments
-
-
-class _PoolsOutgrown(Exception):
-    """A fused pass's pools overflowed (Renderer._fused_walks): render it again."""
 
 
 @functools.lru_cache(maxsize=8)
@@ -588,16 +573,11 @@ class Renderer:
         start = time.perf_counter()
         history = dr.flag(dr.JitFlag.KernelHistory) or self.timings is not None
         with dr.suspend_grad(), dr.scoped_set_flag(dr.JitFlag.KernelHistory, history):
-            # Nothing reaches the film before the walks end: a pass whose recording
-            # failed runs again traced, one whose pools overflowed with larger pools.
-            while True:
-                try:
-                    self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
-                    break
-                except frozen.RecordingFailed:
-                    pass
-                except _PoolsOutgrown:
-                    dr.flush_malloc_cache()     # the larger pools replace these
+            try:
+                self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
+            except frozen.RecordingFailed:
+                # Nothing reached the film before the walks: the pass again, traced.
+                self._render_pass(index, pixel_offset, n_pixels, spp, lanes)
             if self._outgrown:
                 self._outgrown = False
                 self._replan(index)
@@ -690,21 +670,16 @@ class Renderer:
         ctx = self._context(index, rays, sampler, lanes, spp)
         timer.lap()
 
-        light_seconds = grid_seconds = 0.0
-        if self._walks_fused(ctx, timer):
-            # Stages 2 and 3 in one recording, where no host step lies between them.
-            store, light_rays, cam = self._fused_walks(ctx, rays, index, spp)
-        else:
-            # Stage 2: light subpaths: stored light vertices and t = 1 splats.
-            store, light_rays = self._light_subpaths(ctx, index, spp)
-            light_seconds = timer.lap()
-            if ctx.merge_radius > 0 and store is not None:
-                ctx.grid = merge.HashGrid.build(store, ctx.merge_radius, ctx.light_count,
-                                                shares=ctx.moments is not None)
-            grid_seconds = timer.lap()
+        # Stage 2: light subpaths: stored light vertices and t = 1 splats.
+        store, light_rays = self._light_subpaths(ctx, index, spp)
+        light_seconds = timer.lap()
+        if ctx.merge_radius > 0 and store is not None:
+            ctx.grid = merge.HashGrid.build(store, ctx.merge_radius, ctx.light_count,
+                                            shares=ctx.moments is not None)
+        grid_seconds = timer.lap()
 
-            # Stage 3: camera subpaths, with every strategy t >= 2.
-            cam = self._camera_walk(ctx, rays, store)
+        # Stage 3: camera subpaths, with every strategy t >= 2.
+        cam = self._camera_walk(ctx, rays, store)
         # Every output the pass reads, in the walk's one kernel: an output evaluated
         # later would run the whole walk again (the pilot's slot counts did: 23 ms).
         dr.eval(cam.radiance, cam.hit, cam.rays, cam.slot, cam.specular_z1)
@@ -860,10 +835,12 @@ class Renderer:
             dr.eval(light_rays, store.vertices.items, store.splats.items, store.first)
             if not store.overflowed():
                 break
-            self._grow_pools(store, n)
+            per_path[0] = max(per_path[0], -(-store.vertices.size() * 5 // (4 * n)))
+            per_path[1] = max(per_path[1], -(-store.splats.size() * 5 // (4 * n)))
             # The larger pools replace these, not join them (Veach's room: 1.5x the peak).
             store = light_rays = buffers = None
             dr.flush_malloc_cache()
+            self._outgrown = True       # the passes after this one: planned anew
             light.light_sampler = self._sampler(index, 1, n, spp)
         stored = store.vertices.size()
         if ctx.budget.connects:     # a budget without connections stores none
@@ -874,49 +851,6 @@ class Renderer:
         if ctx.budget.caches:
             store.order = store.ordered()
         return store, light_rays
-
-    @staticmethod
-    def _walks_fused(ctx, timer) -> bool:
-        """Whether stages 2 and 3 run as one recording (``_fused_walks``): not where a
-        host step lies between them (a vertex cache's order, merging's grid), nor for
-        timed passes (render.calibrate times each walk), nor with strategy images."""
-        return (ctx.light_count > 0 and not ctx.budget.caches and ctx.merge_radius <= 0
-                and ctx.images is None and not timer.on)
-
-    def _fused_walks(self, ctx, rays, index: int, spp: int):
-        """Stages 2 and 3 as one recording (frozen.py): one replay's fixed cost, and
-        one host read after both (at 64x64 each replay costs about 0.6 ms, a third of
-        the pilot pass's kernels).  Pools that overflowed are found after the camera
-        walk, which then read a partial pool: the pass is rendered again with larger
-        ones (``_PoolsOutgrown``; nothing has reached the film)."""
-        n = ctx.light_count
-        # Used by a vertex cache alone, which does not come here.
-        ctx.connection_scale = dr.opaque(mi.Float, 1.0)
-        ctx.stored = dr.opaque(mi.UInt32, 1)
-        light = ctx.for_light_subpaths()
-        per_path = self._capacity
-        store = LightVertexStore(n, n * per_path[0] if ctx.strategies.stores_vertices else 1,
-                                 n * per_path[1], zeroed=False, allocate=False)
-        light_rays, buffers, cam, moments = frozen.call(_recorded_walks, light, ctx, rays,
-                                                        store)
-        store.adopt(buffers)
-        if ctx.moments is not None:
-            ctx.moments.adopt(moments)
-        dr.eval(light_rays, cam.radiance, cam.hit, cam.rays, cam.slot, cam.specular_z1)
-        if store.overflowed():
-            self._grow_pools(store, n)
-            raise _PoolsOutgrown()
-        if ctx.budget.connects:     # a budget without connections stores none
-            self._vertices_per_path = max(store.vertices.size() / n, 1e-3)
-        return store, light_rays, cam
-
-    def _grow_pools(self, store, n: int) -> None:
-        """Pools per light subpath for 5/4 of what ``store``'s walk asked for; the
-        passes after this one are planned anew."""
-        per_path = self._capacity
-        per_path[0] = max(per_path[0], -(-store.vertices.size() * 5 // (4 * n)))
-        per_path[1] = max(per_path[1], -(-store.splats.size() * 5 // (4 * n)))
-        self._outgrown = True
 
     @staticmethod
     def _camera_walk(ctx, rays, store):
