@@ -41,6 +41,32 @@ def test_a_light_pool_overflows_once_per_render(monkeypatch):
     assert res.passes == 2 and checked.count(True) == 1, checked
 
 
+def test_a_pass_whose_pools_overflow_renders_what_room_would(monkeypatch):
+    """A pass whose light walk outgrew its pools runs that walk again with larger ones,
+    and gives the image of a render whose pools had room from the start (the same
+    light subpaths, all of their vertices connected)."""
+    import sys
+
+    import mitsuba as mi
+    from conftest import SCENES
+    render = sys.modules["bdpt_drjit.render"]
+    scene = mi.load_file(str(SCENES / "stress" / "closed-box.xml"), resx=16, resy=16)
+    settings = dict(spp=4, seed=3, max_depth=12, rr_depth=100, light_paths=1,
+                    connections="all")
+
+    def run(r):
+        while not r.done:
+            r.run_pass()
+        return r.result()
+    overflowing = render.Renderer(scene, **settings)
+    grown = run(overflowing)
+    assert overflowing._capacity[0] > render._VERTICES_PER_LANE
+    monkeypatch.setattr(render, "_VERTICES_PER_LANE", 4 * overflowing._capacity[0])
+    roomy = run(render.Renderer(scene, **settings))
+    assert grown.rays == roomy.rays
+    np.testing.assert_allclose(grown.image, roomy.image, rtol=1e-5, atol=1e-6)
+
+
 def _pass_peaks(renderer) -> list:
     """Each pass's peak memory (bytes) above what was held when it began."""
     from benchmarks.memory import pass_peaks
