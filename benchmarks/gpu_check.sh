@@ -19,7 +19,7 @@ fi
 export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb} PYTHONUNBUFFERED=1
 PY=${PY:-python3}
 RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}
-STEPS=${STEPS:-calibrate tests frozen passes breakdown divergence efficiency profile throughput memory small}
+STEPS=${STEPS:-calibrate tests frozen passes breakdown divergence efficiency profile throughput memory small mlt}
 EXT=${BDPT_SHARED:-../shared}/scenes/external
 mkdir -p "$OUT"
 step() {   # step NAME SECONDS COMMAND...: run with a time limit, log, report
@@ -63,6 +63,14 @@ divergence() {   # the connection loop's wasted iterations per warp, and their t
     $PY benchmarks/experiments/connection_divergence.py scenes/deep-box.xml --max-depth 65 \
         --bound 2 --spp 4 --res "$RES"
 }
+mlt() {   # issue 31: MMLT's chains and mutations per second against path, then its
+          # equal-time error against the default bdpt on the door ajar and the box
+    $PY -m benchmarks.gpu_passes --res "$RES" --spp 4 --repeats 1 --methods veach,mlt
+    $PY -m benchmarks.mlt_door --ref-spp 65536 --gap-start 0.49 --seconds 10 --runs 2 \
+        --methods "mlt,bdpt (auto),path"
+    $PY -m benchmarks.mlt_door --ref-spp 16384 --scene scenes/cornell-box.xml --seconds 5 \
+        --plan-mpp 256 --runs 2 --methods "mlt,bdpt (auto)"
+}
 frozen() {   # passes replaying recorded walks under CUDA (BDPT_FREEZE_CUDA=1): the
              # recording's tests, then per-pass times against traced passes
     BDPT_FREEZE_CUDA=1 $PY -m pytest -q -p no:cacheprovider tests/test_frozen.py \
@@ -73,7 +81,7 @@ frozen() {   # passes replaying recorded walks under CUDA (BDPT_FREEZE_CUDA=1): 
     done
     BDPT_FREEZE_CUDA=1 $PY -m benchmarks.small --seeds 8
 }
-export -f profile throughput passes breakdown divergence frozen; export PY RES EXT
+export -f profile throughput passes breakdown divergence mlt frozen; export PY RES EXT
 step calibrate 90 $PY -m bdpt_drjit calibrate --variant "$BDPT_VARIANT"
 step profile 60 profile
 step throughput 100 throughput
@@ -83,6 +91,7 @@ step divergence 90 divergence
 step tests 160 $PY -m pytest -q -p no:cacheprovider -n "${JOBS:-8}" --ignore tests/test_cluster.py \
     -k \'not spectral_and_mono and not variant_switch and not specfilm\'
 step frozen 150 frozen
+step mlt 150 mlt
 step efficiency 110 $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3
 step memory 60 $PY -m benchmarks.memory --res "$RES" --mib 8192 --budget auto
 step small 120 $PY -m benchmarks.small --seeds 8

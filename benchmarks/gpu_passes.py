@@ -1,7 +1,8 @@
 """Where a GPU render's time goes, against Mitsuba's ``path`` in the same process:
 per-pass wall time split into kernel time and the rest (tracing the pass from Python,
 host syncs, launches), for Veach's BDPT at a 2 GiB and at the default memory budget
-(two pass sizes), the default budget, ``vcm`` (merging on) and PSSMLT.
+(two pass sizes), the default budget, ``vcm`` (merging on), PSSMLT and MMLT (``mlt``:
+its chains and mutations per second).
 ``veach-separate-calls`` is Veach's BDPT with one virtual call per BSDF query (an A/B
 of their pairing in surface.Vertex).
 
@@ -52,9 +53,11 @@ def _separate_calls(fn):
     return run
 
 
-def _mlt(scene, spp, seed, max_depth):
-    from bdpt_drjit import mlt
-    r = mlt.MLTRenderer(scene, seed=seed, max_depth=max_depth, mutations_per_pixel=spp)
+def _mlt(scene, spp, seed, max_depth, multiplexed=False):
+    """PSSMLT, or (``multiplexed``) MMLT: the ``mlt`` integrator."""
+    from bdpt_drjit import mlt, mmlt
+    kind = mmlt.MMLTRenderer if multiplexed else mlt.MLTRenderer
+    r = kind(scene, seed=seed, max_depth=max_depth, mutations_per_pixel=spp)
     while not r.done:
         r.run_iteration()
     dr.sync_thread()
@@ -126,6 +129,7 @@ def main(argv=None) -> None:
         "default": lambda seed: _bdpt(scene, s, seed, d),
         "vcm": lambda seed: _bdpt(scene, s, seed, d, merging=True, **VEACH),
         "pssmlt": lambda seed: _mlt(scene, s, seed, d),
+        "mlt": lambda seed: _mlt(scene, s, seed, d, multiplexed=True),
     }
     print("%s, %s, %dx%d, %d spp, max_depth %d" % (mi.variant(), a.scene, a.res, a.res, s, d))
     measure(scene, a.res, s, d, a.repeats, [(m, table[m]) for m in a.methods.split(",")])
