@@ -65,11 +65,18 @@ from .film import FilmAccumulator
 from .media import Media
 from .mis import Weights
 from .optimizer import luminance
-from .render import (PassContext, RenderResult, _mix_seed, _recorded_camera_walk,
+from .render import (PassContext, Renderer, RenderResult, _mix_seed, _recorded_camera_walk,
                      _recorded_light_walk, check_variant)
 from .settings import Settings
 from .strategies import StrategySet
 from .vertices import LightVertexStore, gather
+
+# An rgba film's alpha: the chains' records carry no coverage, so alpha is what the
+# default bdpt's film holds (film.py: 1 where a camera ray reached an opaque surface),
+# from this many path-traced samples per pixel of this engine (MLTRenderer._alpha).
+ALPHA_SPP = 16
+ALPHA_STREAM = 0xA1F4            # the alpha render's seed: _mix_seed(seed, ALPHA_STREAM)
+ALPHA_CHANNEL = 3                # R, G, B, A (the RGB variants; others are refused)
 
 # Depths whose numbers a chain stores (the dimension budget); deeper vertices draw
 # fresh numbers each evaluation (pss.py).
@@ -424,6 +431,7 @@ class MLTRenderer:
         self._tally = dr.zeros(mi.Float, 4)
         self.start_states = 0            # distinct bootstrap samples the chains start on
         self.images = None               # strategy records of an evaluation (mmlt.py)
+        self._alpha_image = None         # an rgba film's alpha (``_alpha``)
         # the direct image (direct_samples): the bootstrap's records of those lengths,
         # then _direct's; b_chains the chains' brightness (b less b_direct if apart)
         self.b_direct, self.b_chains, self.direct_lanes = 0.0, 0.0, 0
@@ -836,13 +844,37 @@ class MLTRenderer:
         return self.film.develop_light(self.pixels / samples)
 
     def tensor(self) -> mi.TensorXf:
-        """The image so far: the chains', plus the direct samples' where apart."""
+        """The image so far: the chains', plus the direct samples' where apart, and the
+        film's alpha where it has one."""
         image = self.chains_tensor()
         if self.direct_lanes:       # the bootstrap's and _direct's (the same estimator)
             samples = (self.bootstrap_samples + self.stage_samples
                        + self.direct_lanes * self.iterations_done)
             image += self.direct_film.develop_light(self.pixels / samples)
-        return image
+        alpha = self._alpha()
+        return image if alpha is None else image + alpha
+
+    def _alpha(self) -> mi.TensorXf | None:
+        """The film's alpha channel with its other channels 0, or None for a film
+        without alpha: ALPHA_SPP samples per pixel of path tracing by this engine
+        (its camera walk's coverage), rendered at the first call and counted in the
+        render's time.  (The records alone left alpha 0: a transparent image.)"""
+        if not mi.has_flag(self.sensor.film().flags(), mi.FilmFlags.Alpha):
+            return None
+        if self._alpha_image is None:
+            start = time.perf_counter()
+            r = Renderer(self.scene, sensor=self.sensor, spp=ALPHA_SPP,
+                         seed=_mix_seed(self.seed, ALPHA_STREAM), light_paths=0, connections=0,
+                         max_depth=self.settings.max_depth, rr_depth=self.settings.rr_depth,
+                         hide_emitters=self.settings.hide_emitters)
+            while not r.done:
+                r.run_pass()
+            image = r.tensor().numpy()
+            alpha = np.zeros_like(image)
+            alpha[..., ALPHA_CHANNEL] = image[..., ALPHA_CHANNEL]
+            self._alpha_image = mi.TensorXf(alpha)
+            self.time += time.perf_counter() - start
+        return self._alpha_image
 
     def result(self) -> RenderResult:
         tensor = self.tensor()

@@ -3,6 +3,7 @@
     python -m benchmarks.random_scenes                    # 20 scenes, seed 1, llvm_ad_rgb
     python -m benchmarks.random_scenes --seed 7 --scenes 40 --variant llvm_ad_spectral
     python -m benchmarks.random_scenes --options budgets  # fixed budgets, not the default
+    python -m benchmarks.random_scenes --options integrators   # mlt, pssmlt and vcm
 
 Each scene has a sensor (perspective, thin lens or orthographic; a random reconstruction
 filter, rgb or rgba, sometimes a crop window or a sampled filter border), a floor
@@ -45,7 +46,12 @@ OPTIONS = {"default": [{}, {"light_paths": 1, "connections": "all"}, {"hide_emit
                        {"light_paths": 1, "connections": 2},
                        {"mis": "balance", "light_paths": 1, "connections": "all"},
                        {"samples_per_pass": 3},
-                       {"light_paths": 2, "connections": "all", "rr_depth": 2}]}
+                       {"light_paths": 2, "connections": "all", "rr_depth": 2}],
+           # The other integrators of the engine: MLT (spp = mutations per pixel) and
+           # vcm, whose merging is consistent, not unbiased (its bias at 128 spp is a
+           # small share of the 2% the test allows).
+           "integrators": [{"integrator": "mlt"}, {"integrator": "pssmlt"},
+                           {"merging": True}]}
 
 
 def bsdf(rng: random.Random, delta_ok: bool) -> dict:

@@ -425,3 +425,29 @@ def test_other_cameras_match_bdpt(camera, kind):
     refs = [bdpt_drjit.render(scene, spp=32, seed=500 + s, max_depth=6, light_paths=1,
                               connections="all").image for s in range(6)]
     assert_statistically_equal(runs, refs, blocks=4, what=camera)
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_rgba_film_alpha_is_bdpts(kind):
+    """An rgba film's alpha is the camera rays' coverage, as the default bdpt's: a
+    sphere against nothing, half the film's pixels at alpha 0 (the chains' records
+    alone had left alpha 0 everywhere: a transparent image).  RGB is the records'."""
+    scene = mi.load_dict({
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": 40,
+                   "to_world": mi.ScalarTransform4f().look_at([0, 0, 4], [0, 0, 0], [0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 16, "height": 16,
+                            "pixel_format": "rgba", "rfilter": {"type": "box"}}},
+        "ball": {"type": "sphere", "radius": 1.0, "bsdf": {"type": "diffuse"}},
+        "sun": {"type": "point", "position": [2, 3, 4], "intensity": 20.0}})
+    image = _mlt(scene, 1, kind).image
+    ref = bdpt_drjit.render(scene, spp=64, seed=1, max_depth=5).image
+    assert image.shape == ref.shape == (16, 16, 4)
+    alpha, ref_alpha = image[..., 3], ref[..., 3]
+    assert 0.2 < ref_alpha.mean() < 0.8 and (ref_alpha == 0).any() and (ref_alpha == 1).any()
+    assert np.all((alpha >= 0) & (alpha <= 1))
+    # ALPHA_SPP samples per pixel against 64: the interior and the outside agree
+    # exactly, the silhouette's pixels within a sample's share.
+    assert np.array_equal(alpha == 0, ref_alpha == 0) or np.abs(alpha - ref_alpha).max() <= 0.5
+    assert abs(alpha.mean() - ref_alpha.mean()) < 0.02
+    assert np.allclose(image[..., :3].mean(), ref[..., :3].mean(), rtol=0.1)
