@@ -1,10 +1,9 @@
 """The merge queries' cost in the camera walk, and the hash grid's build, per pass: two
 Renderers of one fixed budget, without merging and with it, their passes run in turn
 in one process with Dr.Jit's kernel history on; per pass the camera walk's kernel (the
-one of most operations) with the merges it deferred (merge.run_queries: the kernels
-of over 500 operations after it), the light walk's (the other large one) and every
-launch between them (with merging: the grid's build, merge.HashGrid.build); medians
-over the passes after a warm one.
+one of most operations), the light walk's (the other large one) and every launch
+between them (with merging: the grid's build, merge.HashGrid.build); medians over the
+passes after a warm one.
 
     python benchmarks/experiments/merge_walk.py                       # Cornell box 256x256, Veach's budget
     python benchmarks/experiments/merge_walk.py --scene benchmarks/scene_files/sds.xml \\
@@ -44,10 +43,7 @@ def _pass(r: Renderer) -> dict:
     kernels = [i for i, e in enumerate(history) if e["type"] == dr.KernelType.JIT]
     light, cam = sorted(sorted(kernels, key=lambda i: -(history[i].get("operation_count")
                                                          or 0))[:2])
-    deferred = sum(history[i]["execution_time"] for i in kernels
-                   if i > cam and (history[i].get("operation_count") or 0) > 500)
-    return {"camera": history[cam]["execution_time"] + deferred, "deferred": deferred,
-            "light": history[light]["execution_time"],
+    return {"camera": history[cam]["execution_time"], "light": history[light]["execution_time"],
             "between": sum(e.get("execution_time", 0.0) for e in history[light + 1:cam]),
             "kernels": sum(history[i].get("execution_time", 0.0) for i in kernels)}
 
@@ -82,10 +78,10 @@ def main() -> None:
              ", merge body constant" if a.constant_merge else "", a.passes))
     med = {m: {k: statistics.median(p[k] for p in runs[m]) for k in runs[m][0]} for m in runs}
     for m in runs:
-        print("merging=%-5s camera walk %7.1f ms (%5.0f ns/lane; merges after it %6.1f ms)  "
-              "light walk %6.1f ms  between the walks %6.2f ms  all kernels %7.1f ms"
-              % (m, med[m]["camera"], 1e6 * med[m]["camera"] / lanes, med[m]["deferred"],
-                 med[m]["light"], med[m]["between"], med[m]["kernels"]))
+        print("merging=%-5s camera walk %7.1f ms (%5.0f ns/lane)  light walk %6.1f ms  "
+              "between the walks %6.2f ms  all kernels %7.1f ms"
+              % (m, med[m]["camera"], 1e6 * med[m]["camera"] / lanes, med[m]["light"],
+                 med[m]["between"], med[m]["kernels"]))
     print("camera walk with merging / without: %.2f" % (med[True]["camera"] / med[False]["camera"]))
 
 
