@@ -138,6 +138,13 @@ class CameraModel:
                           origin=self.origin(ray, aperture), pdf_w=self.direction_pdf_w(ray.d))
 
 
+    def film_ray_numbers(self) -> int:
+        """How many numbers ``sample_film_rays`` draws per lane: the film position,
+        then the aperture, time and wavelength where the sensor samples them."""
+        sensor = self.sensor
+        return (2 + (2 if sensor.needs_aperture_sample() else 0)
+                + (1 if sensor.shutter_open_time() > 0 else 0) + (1 if mi.is_spectral else 0))
+
     def sample_film_rays(self, sampler, lanes: int) -> CameraRays:
         """One primary ray per lane at a film position drawn uniformly over the crop
         window from the sampler's first two numbers (Metropolis light transport: the

@@ -82,8 +82,13 @@ ALPHA_CHANNEL = 3                # R, G, B, A (the RGB variants; others are refu
 # fresh numbers each evaluation (pss.py).
 STORED_DEPTHS = 12
 # Numbers per depth of a walk (walk.DepthSamples), and before the first depth:
-# camera: film position, aperture, time, wavelength; light: emitter, position,
-# direction, lens sample of (1,1) (walk._light_start).
+# camera: film position, aperture, time, wavelength (at most: the sensor's own count
+# is CameraModel.film_ray_numbers); light: emitter, position, direction, lens sample
+# of (1,1) (walk._light_start).  A walk of max_depth D runs at most D depths of the
+# camera subpath and D - 1 of the light subpath (seen per chain as the samplers'
+# counters: 2 + 6 D and 7 + 6 (D - 1) on a pinhole camera, full BDPT samples and
+# MMLT chains alike), so the stored vectors end there: numbers never read cost a
+# proposal and an acceptance each (54 + 55 per chain at D = 8 against 50 + 49).
 PER_DEPTH, CAMERA_START, LIGHT_START = 6, 6, 7
 # mutations_per_pixel 0: the sensor's sample count; chains and bootstrap_samples 0:
 # automatic.
@@ -145,7 +150,8 @@ PILOT_CHAINS = 4096
 BOOTSTRAP_LANES = 1 << 16       # lanes of a bootstrap batch (at least the chains)
 # Two-stage MLT (``two_stage``, MMLT's default; Mitsuba 0.6's twoStage; Hoberock and
 # Hart 2010, "Arbitrary importance functions for Metropolis light transport"): a first
-# stage of independent samples (keys of their own), in batches of STAGE_LANES until
+# stage of independent samples (keys of their own), in batches of STAGE_LANES (then
+# doubling: the stop is tested at STAGE_LANES x 1, 2, 4, ...) until
 # their effective sample size (sum f)^2 / sum f^2 reaches STAGE_ESS or they number the
 # planned chains (at least BOOTSTRAP_LANES; an eighth of an automatic bootstrap's
 # plan), estimates the image's luminance L on blocks of STAGE_BLOCK x STAGE_BLOCK pixels,
@@ -223,6 +229,19 @@ def _select_records(records: Records, keep: mi.Bool) -> Records:
         pos=dr.zeros(mi.Vector2f, 0), value=dr.zeros(mi.Spectrum, 0), lane=dr.zeros(mi.UInt32, 0))
 
 
+def _copy_rows(x: mi.Float, y: mi.Float, rows: mi.UInt32, dims: int) -> mi.Float:
+    """x with its rows ``rows`` (``dims`` numbers each, row per chain) taken from y.
+    ``dims`` is a literal (fixed by max_depth): the row and column of an element
+    are a multiply and shift, as in pss.propose.  Dr.Jit copies x first where it is
+    referenced elsewhere (a scatter writes in place, but keeps value semantics)."""
+    if not dr.width(rows):
+        return x
+    element = dr.arange(mi.UInt32, dr.width(rows) * dims)
+    index = dr.gather(mi.UInt32, rows, element // dims) * dims + element % dims
+    dr.scatter(x, dr.gather(mi.Float, y, index), index)
+    return x
+
+
 class DirectLuminance:
     """A stand-in for strategies.StrategyImages (``ctx.images``) in the bootstrap: per
     lane, the luminance of the strategies of paths of 1 .. DIRECT_LENGTH edges
@@ -288,11 +307,16 @@ class Chains:
 
     def accept(self, accepted: mi.Bool, y: dict, ev: Evaluation, dims: dict) -> None:
         """x <- y where ``accepted`` (per chain; masks, no per-lane branches): ``y`` the
-        proposal's vectors (as ``vectors()``), ``dims`` their coordinates per chain."""
+        proposal's vectors (as ``vectors()``), ``dims`` their coordinates per chain.
+        The vectors are copied row by row for the accepted chains only: a select over
+        every chain's coordinates cost as much as a proposal, and on hard scenes few
+        proposals are accepted (the door's 0.01 gap: small steps 6.5-10%)."""
+        rows = dr.compress(accepted)
         for name, vector in y.items():
-            element = dr.arange(mi.UInt32, dr.width(vector))
-            take = dr.gather(mi.Bool, accepted, element // dims[name])
-            setattr(self, name, dr.select(take, vector, getattr(self, name)))
+            x = getattr(self, name)
+            setattr(self, name, None)      # x's only reference: the scatter writes in place
+            setattr(self, name, _copy_rows(x, vector, rows, dims[name]))
+            del x
         self.f = dr.select(accepted, ev.f, self.f)
         self.camera = Records(pos=dr.select(accepted, ev.camera.pos, self.camera.pos),
                               value=dr.select(accepted, ev.camera.value, self.camera.value),
@@ -419,8 +443,8 @@ class MLTRenderer:
         self.iterations = max(1, round(self.mutations / self.chains))
         depths = STORED_DEPTHS if self.settings.max_depth < 0 else min(
             self.settings.max_depth, STORED_DEPTHS)
-        self.dims = {"camera_u": CAMERA_START + PER_DEPTH * depths,
-                     "light_u": LIGHT_START + PER_DEPTH * depths}
+        self.dims = {"camera_u": self.camera.film_ray_numbers() + PER_DEPTH * depths,
+                     "light_u": LIGHT_START + PER_DEPTH * max(depths - 1, 0)}
         self._capacity = [4, 5]          # pool records per light subpath, raised on overflow
         self.iterations_done, self.time = 0, 0.0
         self._iterating = False          # in run_iteration: the walks replay (``_walk``)
@@ -580,7 +604,11 @@ class MLTRenderer:
         lum, sums, done = np.zeros(size[0] * size[1]), np.zeros(2), 0
         self.strategies.set_past(0)
         while done < total and not (sums[1] > 0 and sums[0] ** 2 >= STAGE_ESS * sums[1]):
-            n = min(STAGE_LANES, total - done)
+            # batches of STAGE_LANES, then as many as are done (the stop is tested at
+            # STAGE_LANES x 1, 2, 4, ...): a batch's walks are traced anew, some 50-75
+            # ms each on 2 cores whatever its lanes, and the door's 0.01 gap's stage
+            # took 16 batches of 16384 (1.8 s of a 30-s render; 5 batches now)
+            n = min(max(STAGE_LANES, done), total - done)
             ident = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, done)
             self.images = DirectLuminance(n)
             ev = self._evaluate_vectors(n, keys, ident, {name: None for name in self.dims})

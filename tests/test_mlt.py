@@ -451,3 +451,58 @@ def test_rgba_film_alpha_is_bdpts(kind):
     assert np.array_equal(alpha == 0, ref_alpha == 0) or np.abs(alpha - ref_alpha).max() <= 0.5
     assert abs(alpha.mean() - ref_alpha.mean()) < 0.02
     assert np.allclose(image[..., :3].mean(), ref[..., :3].mean(), rtol=0.1)
+
+
+def test_accepted_rows_are_copied_and_nothing_else():
+    """Chains.accept copies the accepted chains' rows only (mlt._copy_rows): the result
+    is the select over every coordinate, and another reference to the old state keeps
+    its values (Dr.Jit's scatter writes in place where x has no other reference)."""
+    rng = np.random.default_rng(5)
+    chains, dims = 37, 11
+    x_np, y_np = rng.random(chains * dims), rng.random(chains * dims)
+    accepted_np = rng.random(chains) < 0.3
+    x, y = mi.Float(x_np), mi.Float(y_np)
+    other = mi.Float(x)
+    rows = dr.compress(mi.Bool(accepted_np))
+    out = mlt._copy_rows(x, y, rows, dims)
+    want = np.where(np.repeat(accepted_np, dims), y_np, x_np).astype(np.float32)
+    assert np.array_equal(out.numpy(), want)
+    assert np.array_equal(other.numpy(), x_np.astype(np.float32))
+    assert mlt._copy_rows(other, y, dr.zeros(mi.UInt32, 0), dims) is other
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_stored_vectors_cover_what_the_walks_read(kind, monkeypatch):
+    """The chains' vectors end where the walks stop reading (mlt.PER_DEPTH): the
+    largest coordinate a chain's camera and light samplers read, over iterations, is
+    the last stored one on the pinhole box (no stored number unread, none read past)."""
+    from bdpt_drjit import frozen
+    monkeypatch.setattr(frozen, "ENABLED", False)       # the samplers' reads traced
+    reads, make = {}, pss.PSSSampler.make
+
+    def counting(lanes, key, identity, values=None, dims=0):
+        sampler = make(lanes, key, identity, values, dims)
+        if values is not None:
+            reads[id(sampler.source)] = (dims, dr.zeros(mi.UInt32, lanes))
+        return sampler
+    next_1d = pss.PSSSampler.next_1d
+
+    def next_counted(self, active=True):
+        if id(self.source) in reads:
+            dr.scatter_reduce(dr.ReduceOp.Max, reads[id(self.source)][1], self.dim + 1,
+                              dr.arange(mi.UInt32, dr.width(self.dim)), active)
+        return next_1d(self, active)
+    monkeypatch.setattr(pss.PSSSampler, "make", staticmethod(counting))
+    monkeypatch.setattr(pss.PSSSampler, "next_1d", next_counted)
+    r = KINDS[kind][1](_box(), seed=1, mutations_per_pixel=16, bootstrap_samples=16384,
+                       chains=1024, max_depth=5)
+    reads.clear()
+    while not r.done:
+        r.run_iteration()
+    assert r.dims["camera_u"] == 2 + mlt.PER_DEPTH * 5
+    assert r.dims["light_u"] == mlt.LIGHT_START + mlt.PER_DEPTH * 4
+    most = {}
+    for dims, count in reads.values():
+        most[dims] = max(most.get(dims, 0), int(dr.max(count)[0]))
+    assert most == {r.dims["camera_u"]: r.dims["camera_u"],
+                    r.dims["light_u"]: r.dims["light_u"]}
