@@ -89,7 +89,7 @@ STORED_DEPTHS = 12
 # counters: 2 + 6 D and 7 + 6 (D - 1) on a pinhole camera, full BDPT samples and
 # MMLT chains alike), so the stored vectors end there: numbers never read cost a
 # proposal and an acceptance each (54 + 55 per chain at D = 8 against 50 + 49).
-PER_DEPTH, CAMERA_START, LIGHT_START = 6, 6, 7
+PER_DEPTH, LIGHT_START = 6, 7
 # mutations_per_pixel 0: the sensor's sample count; chains and bootstrap_samples 0:
 # automatic.
 MLT_PARAMS = {"mutations_per_pixel": 0, "large_step_probability": 0.3,
