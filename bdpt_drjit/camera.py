@@ -137,7 +137,6 @@ class CameraModel:
         return CameraRays(ray=ray, weight=weight, pos=pos, pixel=pixel,
                           origin=self.origin(ray, aperture), pdf_w=self.direction_pdf_w(ray.d))
 
-
     def film_ray_numbers(self) -> int:
         """How many numbers ``sample_film_rays`` draws per lane: the film position,
         then the aperture, time and wavelength where the sensor samples them."""
