@@ -539,8 +539,8 @@ class ClusterRun:
         self.cluster, self.renderer = cluster, renderer
         self.plan, self.pixels, self.spp = renderer.plan, renderer.pixels, renderer.spp
         self._spp_at = [0.0]                  # spp after the first k passes
-        for _, n, spp in self.plan:
-            self._spp_at.append(self._spp_at[-1] + n * spp / self.pixels)
+        for index in range(len(self.plan)):
+            self._spp_at.append(self._spp_at[-1] + renderer.pass_spp(index))
         self.limit = len(self.plan)           # passes to merge (lowered by wind_down)
         self.queue = collections.deque(range(len(self.plan)))
         # An "auto" budget: the pilot pass goes to one worker (index 0); the other

@@ -9,7 +9,8 @@ three groups of strategies: path tracing (s <= 1), the light image (t = 1) and
 connections (u_pt + u_lt + u_con = 1; the two ends of the ratio chains isolate u_pt
 and u_lt, walk.PathState.d_end).  The pass keeps the splats that land in its own
 pixels (film.py), so it is a complete MIS estimator of its pixels and part of the
-image.  (A pass of light and path tracing first, to count the camera walk's rays
+image; a small render's pilot, on one pixel in several, prices alone (Pilot.stride).
+(A pass of light and path tracing first, to count the camera walk's rays
 apart, cost a second traced pass: 10-14 ms of a 64x64 render's 47 ms.)
 
 Second moments.  The balance-heuristic combination of a candidate c, whose rates are
@@ -109,6 +110,10 @@ MIN_SPP = 16                   # fewer samples: the pilot would cost too much
 # of that many BDPT samples costs: a full-film pilot at 128x128 (16384 lanes) took
 # 90-180 ms against 35-65 ms for half of it (glass pane, loaded).
 PILOT_LANES = {"llvm": 1 << 13, "cuda": 1 << 17}
+# A small render's pilot takes at most one of this many of its samples (Pilot.stride):
+# a pilot sample of full BDPT costs about 4-6 samples of path tracing, so the pilot
+# stays near 4% of a render that then path-traces.
+PILOT_SHARE = 128
 BLUR = 4                       # radius of the box filter on the pilot's mean image
 
 
@@ -268,7 +273,7 @@ class MomentSamples:
         estimator relative to each pixel's squared mean (``means``), summed over these
         samples (times
         ``every``) and the pass's splats (a ``MomentSample`` of them, with its
-        validity and the weight of each), outlier pixels left out (``outliers``): an
+        validity, the weight of each and the pass's r = N_L / N_C), outlier pixels left out (``outliers``): an
         estimate of the sum over the pass's camera samples.
 
         A light_first_hits candidate samples a path whose z_1 is smooth by the light
@@ -283,13 +288,17 @@ class MomentSamples:
         f64 = dr.float64_array_t(mi.Float)
         groups = []         # per kind of sample: (relative F^2, u_pt, u_lt, u_vm, pixel,
                             # relative F^2 of merge pairs)
-        kinds = [(self._camera_side(), None, self.every)]
-        for items, valid, weight in kinds + ([] if splats is None else [splats]):
+        kinds = [(self._camera_side(), None, self.every, means.own)]
+        if splats is not None:          # a splat is 1 / r of a camera sample's share
+            items, valid, weight, r = splats
+            own = means.own if means.light_own is None else means.light_own
+            kinds.append((items, valid, weight, own * dr.opaque(mi.Float, 1.0 / r)))
+        for items, valid, weight, own in kinds:
             if valid is not None:
                 items = gather(items, dr.compress(valid))  # the recorded samples only
             if dr.width(items.f2) == 0:
                 continue
-            mean2 = means.squared(items.pixel, dr.sqrt(items.f2 + items.f2_pairs))
+            mean2 = means.squared(items.pixel, dr.sqrt(items.f2 + items.f2_pairs), own)
             weight = dr.opaque(mi.Float, weight)           # no kernel per value
             groups.append((f64(items.f2 / mean2 * weight), f64(items.u_pt), f64(items.u_lt),
                            f64(items.u_vm), items.pixel, f64(items.f2_pairs / mean2 * weight),
@@ -462,11 +471,13 @@ class PilotMeans:
     exactly when F is large.  On the point-light caustic that bias made the summed
     moment 27x too small, and the decision ignored the noise that dominates there."""
     blurred: mi.Float       # luminance per pixel, box-filtered
-    own: mi.Float           # a sample's weight in its own pixel's blurred mean
+    own: mi.Float           # a camera sample's weight in its own pixel's blurred mean
     floor: float            # DARK x the image mean^2
+    light_own: mi.Float | None = None   # a splat's per unit of value / r (own's if None)
 
     @classmethod
-    def of(cls, image: np.ndarray, spp: int, filled: np.ndarray | None = None) -> "PilotMeans":
+    def of(cls, image: np.ndarray, spp: int, filled: np.ndarray | None = None,
+           stride: int = 1) -> "PilotMeans":
         """From the pilot image's luminance (H, W) after ``spp`` camera samples per
         pixel: each sample is 1 / spp of its pixel (splats too: film.py's light image
         normalization; a wider pixel filter spreads that share over neighbours, almost
@@ -477,7 +488,9 @@ class PilotMeans:
         window widened to hold as many of them as BLUR's holds pixels (a noisier mean
         makes the moments larger, 1 / mean^2: a quarter-film pilot's were 1.09-1.15x
         what the whole film's later passes estimated with BLUR's window, 1.03-1.13x
-        with this one, test_optimizer.py)."""
+        with this one, test_optimizer.py).  There a splat counts ``stride`` times in a
+        filled pixel (the film keeps the splats in the pass's pixels, scaled) and not
+        at all in another."""
         h, w = image.shape
         r = BLUR
         cover, mean = 1.0, float(np.mean(image))      # share of a window with samples
@@ -488,13 +501,18 @@ class PilotMeans:
             mean = float(image.sum() / filled.sum())
         k = 2 * r + 1
         own = np.outer(_self_counts(h, r), _self_counts(w, r)) / (k * k * max(spp, 1) * cover)
+        light_own = own if filled is None else own * filled * stride
         return cls(blurred=mi.Float((_blur(image, r) / cover).ravel().astype(np.float32)),
                    own=mi.Float(own.ravel().astype(np.float32)),
+                   light_own=mi.Float(light_own.ravel().astype(np.float32)),
                    floor=DARK * max(mean ** 2, 1e-12))
 
-    def squared(self, pixel: mi.UInt32, value: mi.Float) -> mi.Float:
-        """The squared mean a sample of luminance ``value`` at ``pixel`` divides by."""
-        mean = dr.gather(mi.Float, self.blurred, pixel) - value * dr.gather(mi.Float, self.own, pixel)
+    def squared(self, pixel: mi.UInt32, value: mi.Float, own: mi.Float | None = None) -> mi.Float:
+        """The squared mean a sample of luminance ``value`` at ``pixel`` divides by;
+        ``own``: its weight in its pixel's mean per unit of value (a camera
+        sample's by default)."""
+        own = self.own if own is None else own
+        mean = dr.gather(mi.Float, self.blurred, pixel) - value * dr.gather(mi.Float, own, pixel)
         return dr.maximum(dr.square(dr.maximum(mean, 0.0)), dr.opaque(mi.Float, self.floor))
 
 
@@ -630,18 +648,33 @@ class Pilot:
         return max(1, min(-(-_pilot_lanes() // pixels), total_spp // 32))
 
     @staticmethod
-    def stride(pixels: int, spp: int) -> int:
-        """The pilot pass takes one pixel in ``stride``: 1, the whole film, or 2 where
-        half of it at 1 spp still gives the pass PILOT_LANES; the odd pixels then get
-        their sample of the round from the chosen budget (render.Renderer._plan_pilot).  Past that size the pilot's samples need not
-        grow with the film: its decision prices counts, not timings, so its pass
-        needs no occupancy, only enough samples for the moments.  The means its
-        moments divide by (PilotMeans) rest on fewer samples, which makes every
-        candidate's moment a few percent larger (1 / mean^2 of a noisier mean),
-        about alike for all.  (A pilot on a quarter of the film made them 1.03-1.13x
-        the whole film's estimate, Cornell box 256x256, 7 seeds; on half of it
-        1.02-1.06x.)"""
-        return 2 if spp == 1 and pixels // 2 >= _pilot_lanes() else 1
+    def stride(pixels: int, spp: int, total_spp: int) -> tuple[int, bool]:
+        """The pilot pass takes one pixel in ``stride``, and whether its samples stay
+        in the image (``kept``):
+
+        * a large film: 2 where half of it at 1 spp still gives the pass PILOT_LANES;
+          the odd pixels then get their sample of the round from the chosen budget
+          (render.Renderer._plan_pilot).  Past that size the pilot's samples need not
+          grow with the film: its decision prices counts, not timings, so its pass
+          needs no occupancy, only enough samples for the moments.  The means its
+          moments divide by (PilotMeans) rest on fewer samples, which makes every
+          candidate's moment a few percent larger (1 / mean^2 of a noisier mean),
+          about alike for all.  (A pilot on a quarter of the film made them
+          1.03-1.13x the whole film's estimate, Cornell box 256x256, 7 seeds; on half
+          of it 1.02-1.06x.)
+        * a small render (under PILOT_SHARE spp on a film under that size): one pixel
+          in as many as keeps the pilot to 1 / PILOT_SHARE of the render's samples,
+          and PILOT_LANES / 8 of them at least.  Its samples price the candidates and
+          are then dropped: they would cover the film unevenly, and a pass per pixel
+          set to complete the round costs more than they give (the glass pane at
+          64x64, 32 spp: 1.5x ``path``'s error at equal time with a kept pilot on
+          half the film, 1.36x on all of it)."""
+        if spp > 1:
+            return 1, True
+        if pixels // 2 >= _pilot_lanes():
+            return 2, True
+        lanes = max(_pilot_lanes() // 8, pixels * total_spp // PILOT_SHARE)
+        return (1, True) if lanes >= pixels else (-(-pixels // lanes), False)
 
     @staticmethod
     def moment_every(lanes: int, spp: int, unmerged_vcm: bool = False) -> int:
@@ -706,12 +739,13 @@ class Pilot:
         self.costs.merge_items = items / max(lanes, 1) / max(eta, 1e-30)
 
     def decide(self, samples: MomentSamples, splats, mean: np.ndarray, spp: int,
-               filled: np.ndarray | None = None) -> Decision:
+               filled: np.ndarray | None = None, stride: int = 1) -> Decision:
         """The budget for the rest of the render, from the pilot pass's samples and
         its image (its luminance, (H, W), after ``spp`` camera samples per pixel of
-        those in ``filled``, all by default)."""
+        those in ``filled``, all by default, one pixel in ``stride``)."""
         self.decision = self._decide(self.candidates, samples, splats, mean, spp,
-                                     (1.0, 1.0, self.pilot_eta), filled=filled)
+                                     (1.0, 1.0, self.pilot_eta), filled=filled,
+                                     stride=stride)
         self.first = self.decision
         return self.decision
 
@@ -739,7 +773,8 @@ class Pilot:
         self.rounds.append((spp, self.decision.budget))
         return self.decision
 
-    def _decide(self, cands, samples, splats, mean, spp, rates, kept=(), filled=None) -> Decision:
+    def _decide(self, cands, samples, splats, mean, spp, rates, kept=(), filled=None,
+                stride: int = 1) -> Decision:
         """Per candidate, the relative moment summed over pixels per camera sample of
         this pass, averaged with earlier passes' by their recorded camera samples; the
         decision among ``cands`` and ``kept`` (moments of earlier passes alone).  The
@@ -750,7 +785,7 @@ class Pilot:
                           else 0.0, float(c.light_first_hits), self._merge_rate(c, eta)]
                          for c in cands])
         recorded = samples.lanes / samples.every
-        means = PilotMeans.of(mean, spp, filled)
+        means = PilotMeans.of(mean, spp, filled, stride)
         relative = samples.relative_moments(rows, means, splats, self.merging) / samples.lanes
         if self.merging and eta > 0:    # what the candidates without merging miss
             total, weight = self.bias

@@ -224,7 +224,7 @@ def _splat_moments(ctx, store):
                            f2_pairs=dr.zeros(mi.Float, dr.width(value)),
                            query=dr.zeros(mi.Float, dr.width(value)))
     dr.eval(samples)
-    return samples, None, stride / r ** 2
+    return samples, None, stride / r ** 2, r
 
 
 def _recorded_light_walk(ctx, store):
@@ -404,7 +404,8 @@ class Renderer:
         self.pilot, self._stride, self._path_tracer = None, {}, None
         self._moment_passes = set()     # passes after the pilot that re-decide
         self._pending = []              # the vcm pilot pass, merged for moments only
-        self._pilot_round = 0           # passes of the round the pilot opens (2 or 3)
+        self._pilot_round = 0           # passes of the round the pilot opens (1 or 2)
+        self._pilot_kept = True         # the pilot's samples stay in the image
         if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
             self._plan_pilot(max_lanes)
             if not self.media.present and not self._path_drops_light:
@@ -437,7 +438,9 @@ class Renderer:
         (optimizer.py), then the rest of the samples.  On a large film the pilot pass
         takes every other pixel (optimizer.Pilot.stride), and a second pass of its
         round gives the odd ones their samples with the budget chosen, so that every
-        pixel has the same samples after the round."""
+        pixel has the same samples after the round.  A small render's pilot takes one
+        pixel in several and its samples are dropped (``pass_spp``): all the render's
+        samples come after it."""
         self.pilot = Pilot(mi.is_spectral,
                            self.camera.light_image_possible and self.settings.light_image,
                            self._unit_costs or units.load() or calibrate(),
@@ -451,15 +454,19 @@ class Renderer:
                                  "vertex can be connected to (not an orthographic one)")
         spp = self._accepted_count(self.settings.samples_per_pass
                                    or Pilot.spp(self.pixels, self.spp))
-        if Pilot.stride(self.pixels, spp) == 1:
+        stride, self._pilot_kept = Pilot.stride(self.pixels, spp, self.spp)
+        if stride == 1:
             pilot_round = [(0, self.pixels, spp)]
-        else:
+        elif self._pilot_kept:
             pilot_round = [(0, (self.pixels + 1) // 2, spp), (1, self.pixels // 2, spp)]
             self._stride = {0: 2, 1: 2}
+        else:
+            pilot_round = [(0, -(-self.pixels // stride), spp)]
+            self._stride = {0: stride}
         self._pilot_round = len(pilot_round)
         self.plan = pilot_round + plan_passes(
-            self.spp - spp, self.pixels, max_lanes, self.settings.samples_per_pass,
-            self._accepted_count)
+            self.spp - (spp if self._pilot_kept else 0), self.pixels, max_lanes,
+            self.settings.samples_per_pass, self._accepted_count)
 
     def _replan(self, after: int) -> None:
         """The passes after pass ``after``, sized anew for the budget in force and the
@@ -521,8 +528,8 @@ class Renderer:
         self._moment_passes = {i for i in self._moment_passes if i <= done}
         if not self.redecide or self.budget.light_ratio <= 0 or self.pilot is None:
             return
-        ends = np.cumsum([n * spp / self.pixels for _, n, spp in self.plan])
-        pilot_spp = ends[self._pilot_round - 1]
+        ends = np.cumsum([self.pass_spp(i) for i in range(len(self.plan))])
+        pilot_spp = sum(n * spp for _, n, spp in self.plan[:self._pilot_round]) / self.pixels
         for c in (4, 16, 64):
             if ends[done] >= c * pilot_spp - 1e-9:
                 continue                                # reached by the passes done
@@ -530,6 +537,14 @@ class Renderer:
                      if ends[i] >= c * pilot_spp - 1e-9]
             if after:
                 self._moment_passes.add(after[0])
+
+    def pass_spp(self, index: int) -> float:
+        """Samples per pixel that pass ``index`` of the plan adds to the image: none
+        for a pilot whose samples are dropped (``_plan_pilot``)."""
+        if index < Pilot.PASSES and not self._pilot_kept:
+            return 0.0
+        _, n, spp = self.plan[index]
+        return n * spp / self.pixels
 
     def _accepted_count(self, n: int) -> int:
         sampler = self.sensor.sampler().clone()
@@ -550,8 +565,9 @@ class Renderer:
         unbiased there.  Only the pilot's first pass (the even pixels) and a very large
         film split into pixel ranges are ever between rounds: a stop there would leave
         pixels with the light image alone (a time budget that ran out in the pilot's
-        first pass wrote the odd pixels black)."""
-        if 0 < passes < self._pilot_round:
+        first pass wrote the odd pixels black); and a pilot whose samples were dropped
+        has left none."""
+        if 0 < passes < self._pilot_round or (passes > 0 and spp_done == 0):
             return False
         return abs(spp_done - round(spp_done)) < 1e-6
 
@@ -586,7 +602,7 @@ class Renderer:
             dr.sync_thread()
         self.time += time.perf_counter() - start
         self.passes_done += 1
-        self.spp_done += n_pixels * spp / self.pixels
+        self.spp_done += self.pass_spp(index)
 
     # -- one pass -----------------------------------------------------------------------
     def _is_pilot_pass(self, index: int) -> bool:
@@ -707,6 +723,8 @@ class Renderer:
             for pending in self._pending if self.budget.merges else ():
                 self._merging_after_all(*pending)
             self._pending = []
+            if not self._pilot_kept:
+                self.film.clear()
         elif ctx.moments is not None:
             ctx.moments.count = cam.slot
             self.pilot.costs.merge_eta = self.merge_eta(index)
@@ -787,16 +805,16 @@ class Renderer:
         if len(counts) > 4:
             self.pilot.record_merging(lanes, counts[4], counts[5], ctx.mis_rates[2])
         ctx.moments.count = cam.slot
-        # Where later passes complete the round, the light image is normalized by the
-        # round's camera samples and the means are the pilot's pixels'.
-        partial = self._pilot_round > Pilot.PASSES
-        mean = self._luminance(sum(n * spp for _, n, spp in self.plan[:self._pilot_round])
-                               if partial else None)
+        # Where the pilot took one pixel in several, its light image is normalized as
+        # if the round had every pixel's samples, and the means are its pixels'.
+        partial = self._stride.get(index, 1) > 1
+        mean = self._luminance(self.pixels * self.plan[index][2] if partial else None)
         filled = self._pilot_pixels(mean.shape, self._stride[index]) if partial else None
         self.pilot.pilot_eta = ctx.mis_rates[2]
         self.pilot.costs.merge_eta = self.merge_eta(self._pilot_round - 1)
         self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean,
-                                         self.plan[index][2], filled).budget
+                                         self.plan[index][2], filled,
+                                         self._stride.get(index, 1)).budget
         self._replan(self._pilot_round - 1)
 
     def _pilot_pixels(self, shape, stride: int) -> np.ndarray:
@@ -874,7 +892,7 @@ class Renderer:
         if raw:
             self.film.add_raw(raw)
         self.passes_done = int(passes)
-        self.spp_done = sum(n * spp for _, n, spp in self.plan[:passes]) / self.pixels
+        self.spp_done = sum(self.pass_spp(i) for i in range(passes))
         self.time, self.rays = float(time), int(rays)
 
     def tensor(self) -> mi.TensorXf:

@@ -323,11 +323,15 @@ class _FakeRenderer:
     """A plan of pixel ranges: 2 ranges of 50 pixels per round, 3 rounds (3 spp)."""
     plan = [(0, 50, 1), (50, 50, 1)] * 3
     pixels, spp = 100, 3
-    pilot, budget, _pilot_round = None, None, 0
+    pilot, budget, _pilot_round, _pilot_kept = None, None, 0, True
 
     def is_round_end(self, passes, spp_done):
         from bdpt_drjit.render import Renderer
         return Renderer.is_round_end(self, passes, spp_done)
+
+    def pass_spp(self, index):
+        from bdpt_drjit.render import Renderer
+        return Renderer.pass_spp(self, index)
 
 
 def _run(**slots):

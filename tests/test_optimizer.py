@@ -259,6 +259,58 @@ def test_a_large_film_pilots_on_half_its_pixels(name, light):
     assert (r.budget.light_ratio > 0) == light, r.pilot.decision.describe()
 
 
+def test_a_small_render_pilots_on_a_few_pixels_and_drops_its_samples():
+    """Under PILOT_SHARE spp on a film of fewer than 2 x PILOT_LANES pixels, the pilot
+    takes one pixel in several (Pilot.stride: 1024 lanes of 4096 pixels here, at most
+    1 / 128 of the render's samples) and its samples leave the image: the round has
+    not ended after it, and every sample of the render comes after it.  The decision
+    is the one larger films make (test_light_subpaths_for_a_point_caustic)."""
+    scene = mi.load_file(scene_path("point-caustic.xml"), resx=64, resy=64)
+    r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=32, seed=1, max_depth=8)
+    assert r.plan[0] == (0, 1024, 1) and r._stride == {0: 4} and r.plan[1][1] == 4096
+    r.run_pass()
+    assert r.spp_done == 0 and not r.at_round_end and r.film.camera_samples == 0
+    assert not np.any(r.tensor().numpy())
+    assert r.pilot.decision.budget == Budget(4.0, 0, True), r.pilot.decision.describe()
+    while not r.done:
+        r.run_pass()
+    assert r.at_round_end and r.spp_done == 32 and r.result().spp == 32
+    assert r.film.camera_samples == 32 * 4096
+
+
+def test_a_small_renders_image_is_unbiased():
+    """A render after a pilot whose samples were dropped: the light image is normalized
+    by the camera samples after it alone (the point-light caustic, 16 spp)."""
+    scene = mi.load_file(scene_path("point-caustic.xml"), resx=64, resy=64)
+    ours = []
+    for seed in range(8):
+        r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=16, seed=seed, max_depth=8)
+        assert not r._pilot_kept
+        while not r.done:
+            r.run_pass()
+        ours.append(r.tensor().numpy()[..., :3])
+    ref = [mitsuba_render(scene, "ptracer", 64, seed=500 + s, max_depth=8) for s in range(8)]
+    assert_statistically_equal(ours, ref, blocks=2, what="a small render after its pilot")
+
+
+def test_a_splat_leaves_its_own_share_out_of_its_pixels_mean():
+    """A splat is value / r of a camera sample (N_C / N_L times its value), and where the
+    pilot took one pixel in ``stride`` the film keeps it, scaled by ``stride``, in
+    those pixels alone.  A pixel whose light is one splat has no mean left without
+    it: the squared mean it divides by is the floor (it kept half the pixel's light
+    with the camera sample's share, and a quarter more at r = 1 / 2)."""
+    h = w = 16
+    stride, r, value = 2, 0.5, 3.0
+    filled = (np.arange(h * w) % stride == 0).reshape(h, w)
+    image = np.zeros((h, w))
+    image[5, 6] = value / r * stride                        # the film's pixel, 1 spp
+    means = PilotMeans.of(image, 1, filled, stride)
+    assert means.light_own.numpy().reshape(h, w)[5, 7] == 0.0  # a pixel not kept
+    own = means.light_own * (1.0 / r)
+    mean2 = means.squared(mi.UInt32(5 * w + 6), mi.Float(value), own)
+    assert mean2.numpy()[0] == pytest.approx(means.floor, rel=1e-3, abs=1e-9)
+
+
 def test_the_pixels_of_a_half_film_pilot_in_a_cropped_film(monkeypatch):
     """The means of a half-film pilot average the crop pixels its pass sampled: every
     camera ray of the pilot pass that lands in the crop window lands on one, and every
@@ -423,7 +475,8 @@ def test_a_later_moment_pass_records_every_nth_lane():
     means = PilotMeans(mi.Float([1.0] * 4), mi.Float([0.0] * 4), 0.0)
     splats = (MomentSample(pixel=mi.UInt32([1]), f2=mi.Float([4.0]), u_pt=mi.Float([0.0]),
                            u_lt=mi.Float([1.0]), u_vm=mi.Float([0.0]),
-                           f2_pairs=mi.Float([0.0]), query=mi.Float([0.0])), mi.Bool([True]), 0.25)
+                           f2_pairs=mi.Float([0.0]), query=mi.Float([0.0])), mi.Bool([True]), 0.25,
+              2.0)      # r
     rates = np.array([[1.0, 0.0, 0.0]])
     # 2 x (1 + 1) from the camera side (lanes 1 and 3, F = 5, unrecorded), 0.25 x 4
     # from the splat
