@@ -895,6 +895,13 @@ class Renderer:
         self.spp_done = sum(self.pass_spp(i) for i in range(passes))
         self.time, self.rays = float(time), int(rays)
 
+    def _walk_samples(self) -> float:
+        """Camera samples of this engine's walks (``rays`` counts their rays): the
+        image's that Mitsuba's path did not render, and a pilot's that were dropped."""
+        dropped = self.pass_spp(0) == 0 and self.passes_done > 0
+        return ((self.spp_done - self.path_tracer_spp) * self.pixels
+                + (self.plan[0][1] * self.plan[0][2] if dropped else 0))
+
     def tensor(self) -> mi.TensorXf:
         return self.film.develop()
 
@@ -911,8 +918,7 @@ class Renderer:
                             rays=self.rays, kernel_history=list(self.kernel_history),
                             stats={"pixels": self.pixels,
                                    "lanes_per_pass": max(p[1] * p[2] for p in self.plan),
-                                   "rays_per_sample": self.rays / max(
-                                       1, (self.spp_done - self.path_tracer_spp) * self.pixels),
+                                   "rays_per_sample": self.rays / max(1, self._walk_samples()),
                                    "path_tracer_spp": self.path_tracer_spp,
                                    "budget": str(self.budget), "decision": self.decision_text(),
                                    **self.cost_stats()})

@@ -276,6 +276,12 @@ def test_a_small_render_pilots_on_a_few_pixels_and_drops_its_samples():
         r.run_pass()
     assert r.at_round_end and r.spp_done == 32 and r.result().spp == 32
     assert r.film.camera_samples == 32 * 4096
+    # Path tracing chosen: the engine's rays are the pilot's, per pilot sample.
+    glass = mi.load_file(scene_path("glass-pane.xml"), resx=64, resy=64)
+    r = sys.modules["bdpt_drjit.render"].Renderer(glass, spp=32, seed=1, max_depth=8)
+    while not r.done:
+        r.run_pass()
+    assert r.path_tracer_spp == 32 and 1 <= r.result().stats["rays_per_sample"] < 40
 
 
 def test_a_small_renders_image_is_unbiased():
