@@ -454,7 +454,8 @@ class Renderer:
                                  "vertex can be connected to (not an orthographic one)")
         spp = self._accepted_count(self.settings.samples_per_pass
                                    or Pilot.spp(self.pixels, self.spp))
-        stride, self._pilot_kept = Pilot.stride(self.pixels, spp, self.spp)
+        stride, self._pilot_kept = Pilot.stride(self.pixels, spp, self.spp,
+                                                self.settings.merging)
         if stride == 1:
             pilot_round = [(0, self.pixels, spp)]
         elif self._pilot_kept:

@@ -4,14 +4,15 @@
     python -m benchmarks.random_scenes --seed 7 --scenes 40 --variant llvm_ad_spectral
     python -m benchmarks.random_scenes --options budgets  # fixed budgets, not the default
     python -m benchmarks.random_scenes --options integrators   # mlt, pssmlt and vcm
+    python -m benchmarks.random_scenes --res 64 --spp 32  # small renders' pilot (1/4 film)
 
 Each scene has a sensor (perspective, thin lens or orthographic; a random reconstruction
 filter, rgb or rgba, sometimes a crop window or a sampled filter border), a floor
 (sometimes textured), a sphere or a cube (sometimes a cube of fog) and sometimes a wall
 with random BSDFs, and a light (an area rectangle or sphere, a point, a spot, a
 directional light, a constant or an environment-map sky), sometimes with a small
-sphere light beside it.  bdpt renders it 4 x 128 spp with an option set drawn per scene,
-volpath 4 x 512 spp.  Per 4 x 4 block of the image, z = the difference of the means over
+sphere light beside it.  bdpt renders it 4 x 128 spp (``--spp``) with an option set drawn
+per scene, volpath 4 x 512 spp, on films of 24 x 24 pixels (``--res``).  Per 4 x 4 block of the image, z = the difference of the means over
 the seeds' standard errors and 2% of the reference; a scene is flagged BAD at z > 6, a
 non-finite pixel, or a mean alpha off volpath's by over ALPHA_TOLERANCE; ERR where bdpt
 raises (a clear refusal is expected there; anything else is a bug).  Alpha (rgba
@@ -36,7 +37,7 @@ import numpy as np
 import mitsuba as mi          # bdpt_drjit is imported once the variant is set (main)
 
 SKY = Path(__file__).resolve().parents[1] / "scenes" / "textures" / "sky.exr"
-RES = 24
+RES = 24                        # the film's side (--res)
 # An rgba film's mean alpha against volpath's: the default bdpt's differed by 0.01 at
 # most over seeds 35-38 (the film's edge pixels' samples); mlt's was 0 before it had
 # alpha at all.
@@ -89,7 +90,8 @@ def sensor(rng: random.Random) -> dict:
             "pixel_format": rng.choice(["rgb", "rgba"]),
             "rfilter": {"type": rng.choice(["box", "gaussian", "tent", "lanczos"])}}
     if rng.random() < 0.3:
-        film.update(crop_offset_x=3, crop_offset_y=5, crop_width=16, crop_height=12)
+        film.update(crop_offset_x=3, crop_offset_y=5, crop_width=RES * 2 // 3,
+                    crop_height=RES // 2)
     if rng.random() < 0.3:
         film["sample_border"] = True
     out = {"type": kind, "to_world": view, "film": film,
@@ -161,14 +163,14 @@ def blocks(image: np.ndarray) -> np.ndarray:
     return lum[:h, :w].reshape(4, h // 4, 4, w // 4).mean((1, 3))
 
 
-def check(d: dict, max_depth: int, options: dict) -> tuple:
+def check(d: dict, max_depth: int, options: dict, spp: int = 128) -> tuple:
     """(worst block z, bdpt's mean, volpath's, alpha means or None, all finite)."""
     import bdpt_drjit
     scene = mi.load_dict(d, optimize=False)      # as support.load_file
     hide = options.get("hide_emitters", False)
     ref = [np.array(mi.render(scene, spp=512, seed=100 + i, integrator=mi.load_dict(
         {"type": "volpath", "max_depth": max_depth, "hide_emitters": hide}))) for i in range(4)]
-    ours = [bdpt_drjit.render(scene, spp=128, seed=i, max_depth=max_depth, **options).image
+    ours = [bdpt_drjit.render(scene, spp=spp, seed=i, max_depth=max_depth, **options).image
             for i in range(4)]
     a, b = np.array([blocks(x) for x in ours]), np.array([blocks(x) for x in ref])
     se2 = (a.var(0, ddof=1) + b.var(0, ddof=1)) / 4 + (0.02 * b.mean(0)) ** 2 + 1e-8
@@ -184,8 +186,11 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=20)
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--options", choices=sorted(OPTIONS), default="default")
+    ap.add_argument("--res", type=int, default=RES)
+    ap.add_argument("--spp", type=int, default=128)
     a = ap.parse_args()
     mi.set_variant(a.variant)
+    globals()["RES"] = a.res
     rng = random.Random(a.seed)
     bad = 0
     for index in range(a.scenes):
@@ -193,7 +198,7 @@ def main() -> None:
         max_depth = -1 if passing else rng.choice([3, 5, -1])
         options = rng.choice(OPTIONS[a.options])
         try:
-            z, ours, ref, alpha, finite = check(d, max_depth, options)
+            z, ours, ref, alpha, finite = check(d, max_depth, options, a.spp)
         except Exception as e:                  # a refusal or a bug: printed either way
             print("ERR  %2d %s, max_depth %d, %s: %s: %s" % (index, desc, max_depth, options,
                                                             type(e).__name__, str(e)[:200]), flush=True)

@@ -282,6 +282,10 @@ def test_a_small_render_pilots_on_a_few_pixels_and_drops_its_samples():
     while not r.done:
         r.run_pass()
     assert r.path_tracer_spp == 32 and 1 <= r.result().stats["rays_per_sample"] < 40
+    # Where merging is a candidate the pilot takes the whole film (Pilot.stride).
+    vcm = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=32, seed=1, max_depth=8,
+                                                    merging=True)
+    assert vcm.plan[0] == (0, 4096, 1) and vcm._pilot_kept
 
 
 def test_a_small_renders_image_is_unbiased():
