@@ -76,6 +76,15 @@ def connection_key(ctx, depth, s) -> mi.UInt32:
     return key
 
 
+def hidden(si: mi.SurfaceInteraction3f) -> mi.Bool:
+    """An area emitter's surface, which the camera's first rays pass with hide_emitters:
+    Mitsuba's path and volpath skip every area emitter along a camera ray (3.6 on;
+    ``Integrator.skip_area_emitters``), so a hidden light shows what lies behind it,
+    not its shape.  The light image's connections to the camera pass them too, and a
+    light vertex on one is not seen (walk.py, splat.py)."""
+    return si.is_valid() & (si.shape.emitter() != None)  # noqa: E711
+
+
 def is_boundary(si: mi.SurfaceInteraction3f) -> mi.Bool:
     """A surface whose BSDF has a null lobe and nothing else (``null``): a medium
     boundary, crossed and not a vertex.  A mask or a thin dielectric, whose null lobe
@@ -195,24 +204,32 @@ class Media:
         return dr.select(es.infinite, mi.MediumPtr(self.unbounded), medium)
 
     # -- the walks' free flights ----------------------------------------------------------
-    def next_vertex(self, state, sampler, active) -> Flight:
+    def next_vertex(self, state, sampler, active, past_emitters=None) -> Flight:
         """Follow ``state.ray`` (in ``state.medium``) to the next vertex: a surface with
         a non-null BSDF or a real collision, one free flight per loop iteration.  Null
         collisions and null surfaces move the ray on (``state.ray``, ``state.medium``).
-        Each segment draws its channel, distance and collision type from ``sampler``."""
+        Each segment draws its channel, distance and collision type from ``sampler``.
+        ``past_emitters`` (a mask, or None): those lanes' rays pass through the
+        surfaces of area emitters as through null ones (hide_emitters: ``hidden``)."""
         n = dr.width(active)
         one = dr.ones(mi.Float, n)
         if not self.present:
             si = self.scene.ray_intersect(state.ray, mi.RayFlags.All, False, active)
+            rays = dr.select(active, 1, 0)
+            if past_emitters is not None:
+                si, more = self._past_emitters(state.ray, si, active & past_emitters)
+                rays += more
             return Flight(si=si, mei=None, surface=active & si.is_valid(),
                           medium=dr.zeros(mi.Bool, n), escaped=active & ~si.is_valid(),
                           weight=dr.ones(mi.Spectrum, n), dens_fwd=one, dens_rev=one,
-                          rays=dr.select(active, 1, 0))
+                          rays=rays)
         loop = _Segments(ray=mi.Ray3f(state.ray), medium=mi.MediumPtr(state.medium),
                          weight=dr.ones(mi.Spectrum, n), dens_fwd=one, dens_rev=mi.Float(one),
                          first=dr.ones(mi.Bool, n), going=mi.Bool(active),
                          rays=dr.zeros(mi.UInt32, n), si=dr.zeros(mi.SurfaceInteraction3f, n),
-                         mei=dr.zeros(mi.MediumInteraction3f, n), real=dr.zeros(mi.Bool, n))
+                         mei=dr.zeros(mi.MediumInteraction3f, n), real=dr.zeros(mi.Bool, n),
+                         past_emitters=(dr.zeros(mi.Bool, n) if past_emitters is None
+                                        else mi.Bool(past_emitters)))
         behind = mi.Spectrum(state.sigma_prev)
 
         def body(loop, sampler):
@@ -226,6 +243,20 @@ class Media:
         return Flight(si=loop.si, mei=loop.mei, surface=found, medium=active & loop.real,
                       escaped=active & ~loop.real & ~loop.si.is_valid(), weight=loop.weight,
                       dens_fwd=loop.dens_fwd, dens_rev=loop.dens_rev, rays=loop.rays)
+
+    def _past_emitters(self, ray, si, active):
+        """The first surface along ``ray`` that is not an area emitter's, from its first
+        hit ``si``: Mitsuba's ``skip_area_emitters``.  Returns it and the rays traced."""
+        def body(ray, si, going, rays):
+            going &= hidden(si)
+            ray = dr.select(going, si.spawn_ray(ray.d), ray)
+            found = self.scene.ray_intersect(ray, mi.RayFlags.All, False, going)
+            return ray, dr.select(going, found, si), going, rays + dr.select(going, 1, 0)
+
+        n = dr.width(active)
+        _, si, _, rays = dr.while_loop((mi.Ray3f(ray), si, mi.Bool(active), dr.zeros(mi.UInt32, n)),
+                                       lambda *s: s[2], body, label="past emitters")
+        return si, rays
 
     def _segment(self, loop: "_Segments", behind, sampler) -> None:
         """One free flight of ``next_vertex`` (module docstring; Mitsuba's volpath)."""
@@ -252,7 +283,8 @@ class Media:
         loop.dens_fwd = dr.select(homogeneous, loop.dens_fwd * channel_mean(pdf), loop.dens_fwd)
         loop.dens_rev = dr.select(homogeneous, loop.dens_rev * channel_mean(tr * sigma_behind),
                                   loop.dens_rev)
-        null_surface = going & ~collided & si.is_valid() & is_boundary(si)
+        null_surface = going & ~collided & si.is_valid() & (
+            is_boundary(si) | (loop.past_emitters & hidden(si)))
         # A null collision or a null surface: the ray goes on from there.
         moved = mi.Ray3f(ray)
         moved.o = dr.select(null_surface, si.spawn_ray(ray.d).o, mei.p)
@@ -268,14 +300,20 @@ class Media:
         loop.going = going & passing & spectrum_nonzero(loop.weight)
 
     # -- connections --------------------------------------------------------------
-    def transmittance(self, origin, target_p, target_sigma, key, active):
+    def transmittance(self, origin, target_p, target_sigma, key, active,
+                      past_emitters: bool = False):
         """(T, dens_fwd, dens_rev, rays) of the segment from vertex ``origin`` (surface.
         Vertex) to the point ``target_p``; T is 0 where a non-null surface is in
         between.  ``target_sigma``: sigma_t at the target if it is a homogeneous medium
         vertex, else 1 (the distance density into it, module docstring).  ``key``
-        numbers the connection, for ratio tracking's random numbers."""
+        numbers the connection, for ratio tracking's random numbers.  ``past_emitters``:
+        the surfaces of area emitters pass as null ones (a connection to the camera
+        with hide_emitters, as its camera rays pass them: ``hidden``)."""
         ray = origin.spawn_ray_to(target_p)
         n = dr.width(active)
+        if not self.present and past_emitters:
+            return self._march(ray, target_p, dr.zeros(mi.MediumPtr, n), 1.0, 1.0, key,
+                               active, True)
         if not self.present:
             traced = mi.Bool(active)
             blocked = self.scene.ray_test(ray, traced)
@@ -283,9 +321,11 @@ class Media:
             return (dr.select(traced & ~blocked, dr.ones(mi.Spectrum, n), 0.0), one, one,
                     dr.select(traced, 1, 0))
         medium = origin.medium_toward(ray.d)
-        return self._march(ray, target_p, medium, origin.sigma_t(), target_sigma, key, active)
+        return self._march(ray, target_p, medium, origin.sigma_t(), target_sigma, key, active,
+                           past_emitters)
 
-    def _march(self, ray, target_p, medium, origin_sigma, target_sigma, key, active):
+    def _march(self, ray, target_p, medium, origin_sigma, target_sigma, key, active,
+               past_emitters: bool = False):
         """The segments of a connection, one per loop iteration (see ``transmittance``).
 
         Past a null surface the next segment is a shadow ray of its own, spawned from
@@ -326,6 +366,8 @@ class Media:
             dens_rev[homogeneous] *= channel_mean(seg * dr.select(first, origin_sigma, 1.0))
             at_surface = going & ~tracked & (si.t < ray.maxt)
             passes = at_surface & is_boundary(si)
+            if past_emitters:
+                passes |= at_surface & hidden(si)
             tr[at_surface & ~passes] = 0.0
             changes = passes & si.is_medium_transition()
             medium = dr.select(changes, si.target_medium(ray.d), medium)
@@ -361,6 +403,7 @@ class _Segments:
     si: mi.SurfaceInteraction3f    # the last segment's surface
     mei: mi.MediumInteraction3f    # the last segment's collision
     real: mi.Bool                  # the last segment ended in a real collision
+    past_emitters: mi.Bool         # the ray passes area emitters' surfaces (hidden)
 
 
 def _name(obj) -> str:

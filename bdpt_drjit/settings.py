@@ -65,8 +65,10 @@ PARAMS = (
           "splatted onto the film; without them MIS renormalizes over the rest, and the "
           "paths only they sample (a point light's caustics) are missing: a warning "
           "says so."),
-    Param("hide_emitters", bool, False, "Hide emitters seen directly by the camera (also "
-          "through a null lobe alone, a mask's holes, as Mitsuba's path and volpath do)."),
+    Param("hide_emitters", bool, False, "Hide emitters seen directly by the camera, as "
+          "Mitsuba's path and volpath do: a camera ray passes the area emitters it meets "
+          "first, which show what lies behind them; an emitter seen through a null lobe "
+          "alone (a mask's holes) is hidden too."),
     Param("technique", str, "all", "Render the single strategy ``\"s,t\"`` without MIS "
           "weighting (for tests and for studying strategies)."),
     Param("strategy_subset", str, "all", "``all``; ``pt`` = path tracing with next-event "

@@ -19,7 +19,7 @@ import mitsuba as mi
 
 from . import mis
 from .emitters import AREA
-from .media import connection_key
+from .media import connection_key, hidden
 from .surface import Vertex, finite, spectrum_nonzero
 from .vertices import Splat
 
@@ -32,11 +32,14 @@ def light_vertex_to_camera(ctx, store, v, vertex, sample, active) -> mi.UInt32:
     cam = ctx.camera.connect(v.p, sample, active)
     cos_out, ok = v.cosine(cam.d)
     active = cam.valid & ok
+    hides = ctx.settings.hide_emitters and AREA in ctx.emitters.kinds_present
+    if hides:                   # the camera's rays pass area emitters (media.hidden)
+        active &= ~(v.surface & hidden(v.si))
     f, rev_w = v.eval_adjoint(cam.d, active)
     contrib = vertex.beta * f * cam.importance * ctx.camera_weight
     traced = active & spectrum_nonzero(contrib)
     tr, _, dens_rev, rays = ctx.media.transmittance(
-        v, cam.p, 1.0, connection_key(ctx, vertex.s - 1, 1), traced)
+        v, cam.p, 1.0, connection_key(ctx, vertex.s - 1, 1), traced, hides)
     contrib *= tr
     active = traced & spectrum_nonzero(tr)
     # importance = pdf_w(camera) / d^2, so the camera's area density at y_i is
