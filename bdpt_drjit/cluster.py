@@ -188,7 +188,7 @@ def _load(job: Job):
     scene = load_file(path, **job.params)
     renderer = Renderer(scene, sensor=job.sensor, spp=job.spp, seed=job.seed,
                         strategy_images=job.strategy_images, unit_costs=job.unit_costs,
-                        **job.settings)
+                        reuse_pilot=False, **job.settings)
     renderer.redecide = False     # every worker renders the driver's plan, fixed before
     return renderer               # the pilot
 
@@ -736,12 +736,12 @@ def render_on_cluster(scene, cluster, spp: int | None = None, seed: int = 0, sen
 
     def make(workers):
         r = Renderer(loaded, sensor=sensor, spp=spp, seed=seed,
-                     strategy_images=strategy_images, **settings)
+                     strategy_images=strategy_images, reuse_pilot=False, **settings)
         per_pass = None if "samples_per_pass" in settings else small_pass_spp(r, mi.variant(), workers)
         if per_pass is None:
             return r
         return Renderer(loaded, sensor=sensor, spp=spp, seed=seed,
-                        strategy_images=strategy_images,
+                        strategy_images=strategy_images, reuse_pilot=False,
                         **dict(settings, samples_per_pass=per_pass))
 
     make(address.workers or 1)          # a bad setting fails before Ray starts

@@ -18,6 +18,7 @@ pixels at 1 sample for very large films.  Peak memory does not grow with spp.
 """
 from __future__ import annotations
 
+import copy
 import functools
 import math
 import sys
@@ -316,9 +317,11 @@ class Renderer:
 
     def __init__(self, scene: mi.Scene, sensor=0, spp: int | None = None, seed: int = 0,
                  strategy_images: bool = False, unit_costs: UnitCosts | None = None,
-                 **settings):
+                 reuse_pilot: bool = True, **settings):
         """``unit_costs``: the prices of the pilot's counts (units.py); by default the
-        machine's calibration, measured on first use."""
+        machine's calibration, measured on first use.  ``reuse_pilot``: a small
+        render may take its pilot's outcome from an earlier render (``_ReusedPilot``);
+        a cluster's renderers do not."""
         check_variant()
         self.sensor = camera_stage.select_sensor(scene, sensor)
         # Camera samples cover the crop and any sampled filter border; so do t = 1's.
@@ -328,6 +331,7 @@ class Renderer:
         self.settings = Settings.from_dict(settings)
         camera_stage.check_settings(self.camera, self.settings)
         facts = support.facts(scene, self.sensor)
+        self._facts = facts if reuse_pilot else None    # the scene's state (_ReusedPilot)
         # Refuses what bdpt would get wrong (media, unsupported plugins), warns of the rest.
         support.check(scene, self.sensor, facts.verdicts)
         support.warn_of_light_tracing_paths(scene, self.settings)
@@ -388,6 +392,8 @@ class Renderer:
         self._last_lanes = 0
         self._vertices_per_path = 3.0   # stored light vertices per light subpath, last pass
         self.kernel_history = []        # kernels calibrate()'s timing took from Dr.Jit's history
+        if self.pilot is not None and not self._pilot_kept:
+            _ReusedPilot.restore(self)
 
     def _plan(self, fixed: Budget | None, layers: list) -> None:
         """The passes: equal ones that fit the memory budget, opened by a pilot round
@@ -406,6 +412,7 @@ class Renderer:
         self._pending = []              # the vcm pilot pass, merged for moments only
         self._pilot_round = 0           # passes of the round the pilot opens (1 or 2)
         self._pilot_kept = True         # the pilot's samples stay in the image
+        self._pilot_reused = False      # its outcome came from an earlier render
         if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
             self._plan_pilot(max_lanes)
             if not self.media.present and not self._path_drops_light:
@@ -468,6 +475,7 @@ class Renderer:
         self.plan = pilot_round + plan_passes(
             self.spp - (spp if self._pilot_kept else 0), self.pixels, max_lanes,
             self.settings.samples_per_pass, self._accepted_count)
+
 
     def _replan(self, after: int) -> None:
         """The passes after pass ``after``, sized anew for the budget in force and the
@@ -542,7 +550,7 @@ class Renderer:
     def pass_spp(self, index: int) -> float:
         """Samples per pixel that pass ``index`` of the plan adds to the image: none
         for a pilot whose samples are dropped (``_plan_pilot``)."""
-        if index < Pilot.PASSES and not self._pilot_kept:
+        if index < self._pilot_round and not self._pilot_kept:
             return 0.0
         _, n, spp = self.plan[index]
         return n * spp / self.pixels
@@ -598,6 +606,8 @@ class Renderer:
             if self._outgrown:
                 self._outgrown = False
                 self._replan(index)
+            if self._is_pilot_pass(index) and not self._pilot_kept:
+                _ReusedPilot.keep(self)
             # A pass counts once it is rendered: Dr.Jit launches kernels asynchronously,
             # and a pass that reads nothing back (Mitsuba's path) would only be queued.
             dr.sync_thread()
@@ -606,6 +616,11 @@ class Renderer:
         self.spp_done += self.pass_spp(index)
 
     # -- one pass -----------------------------------------------------------------------
+    def _seed_of(self, index: int) -> int:
+        """The seed of pass ``index``'s random numbers: a pilot whose samples are dropped
+        draws the same ones in every render (``_ReusedPilot``)."""
+        return PILOT_SEED if index < self._pilot_round and not self._pilot_kept else self.seed
+
     def _is_pilot_pass(self, index: int) -> bool:
         """The pilot pass (not the passes that complete its round)."""
         return self.pilot is not None and index < Pilot.PASSES
@@ -614,7 +629,7 @@ class Renderer:
         sampler = self.sensor.sampler().clone()
         sampler.set_sample_count(spp)
         sampler.set_samples_per_wavefront(spp)
-        sampler.seed(_mix_seed(self.seed, index, stream), lanes)
+        sampler.seed(_mix_seed(self._seed_of(index), index, stream), lanes)
         return sampler
 
     def _rules(self, budget: Budget, heuristic: str, shadow: bool = False):
@@ -665,8 +680,8 @@ class Renderer:
             camera_sampler=sampler, light_sampler=self._sampler(index, 1, max(n_light, 1), spp),
             lane=dr.arange(mi.UInt32, lanes), time=rays.ray.time,
             wavelengths=rays.ray.wavelengths, camera_weight=rays.weight,
-            light_count=n_light, pick_offset=dr.opaque(mi.Float, _unit(self.seed, index)),
-            noise_key=dr.opaque(mi.UInt32, _mix_seed(self.seed, index, 2) & 0xFFFFFFFF),
+            light_count=n_light, pick_offset=dr.opaque(mi.Float, _unit(self._seed_of(index), index)),
+            noise_key=dr.opaque(mi.UInt32, _mix_seed(self._seed_of(index), index, 2) & 0xFFFFFFFF),
             images=images, pixel=rays.pixel,
             moments=(MomentSamples(lanes, every, weights.shadow, record, allocate=False,
                                    zeroed=self.timings is not None) if moments else None),
@@ -899,7 +914,8 @@ class Renderer:
     def _walk_samples(self) -> float:
         """Camera samples of this engine's walks (``rays`` counts their rays): the
         image's that Mitsuba's path did not render, and a pilot's that were dropped."""
-        dropped = self.pass_spp(0) == 0 and self.passes_done > 0
+        dropped = (self.passes_done > 0 and self._pilot_round > 0 and self.pass_spp(0) == 0
+                   and not self._pilot_reused)
         return ((self.spp_done - self.path_tracer_spp) * self.pixels
                 + (self.plan[0][1] * self.plan[0][2] if dropped else 0))
 
@@ -943,8 +959,50 @@ class Renderer:
             return "pilot pass pending"
         by_path = self._path_tracer is not None and self.budget == PATH_TRACING
         rounds = "".join("; after %g spp %s" % (spp, b) for spp, b in self.pilot.rounds)
-        return ((self.pilot.first or self.pilot.decision).describe() + rounds
-                + ("; its path-tracing passes run Mitsuba's path" if by_path else ""))
+        return ((self.pilot.first or self.pilot.decision).describe()
+                + ("; the pilot of an earlier render of this scene" if self._pilot_reused else "")
+                + rounds + ("; its path-tracing passes run Mitsuba's path" if by_path else ""))
+
+
+# The seed of a dropped pilot pass's random numbers (Renderer._seed_of).
+PILOT_SEED = 0x5EED
+
+
+class _ReusedPilot:
+    """The outcome of the last small render's pilot, for the next render of the same
+    scene state, sensor, settings, film, spp, unit costs and variant.  A pilot whose
+    samples are dropped (optimizer.Pilot.stride) draws the same random numbers in
+    every render (PILOT_SEED), so its decision, and what its pass changed besides (the
+    plan after it, the pools' capacities, the stored vertices per light subpath), rest
+    on those alone: a render that takes them and skips the pass renders the image it
+    would have rendered, the same for its seed as in a fresh process, without the
+    pilot's cost.  One entry, as support.facts keeps one scene; its ``facts`` object
+    is the same exactly while the scene's state is."""
+    key: tuple | None = None
+    outcome: tuple | None = None
+
+    @staticmethod
+    def _key(r: Renderer) -> tuple:
+        return (r._facts, r.settings, r.pixels, r.spp, r.pilot.costs.units, mi.variant())
+
+    @classmethod
+    def keep(cls, r: Renderer) -> None:
+        if r._facts is None:
+            return
+        cls.key = cls._key(r)
+        cls.outcome = (copy.deepcopy(r.pilot), r.budget, list(r.plan), set(r._moment_passes),
+                       list(r._capacity), r._vertices_per_path)
+
+    @classmethod
+    def restore(cls, r: Renderer) -> None:
+        key = cls._key(r)
+        if r._facts is None or cls.key is None or key[0] is not cls.key[0] or key[1:] != cls.key[1:]:
+            return
+        pilot, budget, plan, moment_passes, capacity, per_path = cls.outcome
+        r.pilot, r.budget, r.plan = copy.deepcopy(pilot), budget, list(plan)
+        r._moment_passes, r._capacity = set(moment_passes), list(capacity)
+        r._vertices_per_path = per_path
+        r.passes_done, r._pilot_reused = 1, True       # pass 0, the pilot, is done
 
 
 # The calibration render: the Cornell box on a film of RES^2 pixels, so that the pilot

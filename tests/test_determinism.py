@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 
+import mitsuba as mi
 from conftest import cli_env, scene_path
 
 _RENDER = r"""
@@ -78,3 +79,38 @@ def test_scene_files_load_without_mitsubas_merging(monkeypatch, tmp_path):
     from bdpt_drjit.cli.scene import load_scene
     load_scene(mi, scene_file, {})
     assert [k.get("optimize") for k in loaded] == [False, False]
+
+
+@pytest.mark.auto_budget
+@pytest.mark.parametrize("scene", ["glass-pane.xml", "point-caustic.xml"])
+def test_a_small_render_reuses_the_pilot_of_an_earlier_one(scene):
+    """A small render's pilot, whose samples are dropped (optimizer.Pilot.stride),
+    draws the same numbers in every render; a render of the same scene state,
+    settings, film and spp takes its outcome from the last such render and skips the
+    pass (render._ReusedPilot): the image is the one rendering it gives (up to the
+    film's float atomics), as in a fresh process.  Not once the scene changed."""
+    renderer = sys.modules["bdpt_drjit.render"].Renderer
+    loaded = mi.load_file(scene_path(scene), resx=64, resy=64)
+
+    def render(seed, **kwargs):
+        r = renderer(loaded, spp=32, seed=seed, max_depth=8, **kwargs)
+        reused = r._pilot_reused
+        while not r.done:
+            r.run_pass()
+        return r, reused
+
+    cold, reused = render(3, reuse_pilot=False)
+    assert not reused and cold.plan[0][1] < cold.pixels          # a dropped pilot
+    render(5)
+    render(5)                   # (the first render settles the scene's literals)
+    warm, reused = render(3)
+    assert reused and "earlier render" in warm.decision_text()
+    assert warm.budget == cold.budget and warm.plan == cold.plan
+    np.testing.assert_allclose(warm.tensor().numpy(), cold.tensor().numpy(), rtol=1e-5,
+                               atol=1e-6)
+    params = mi.traverse(loaded)
+    key = next(k for k in params.keys() if k.endswith(("reflectance.value", "radiance.value",
+                                                       "intensity.value")))
+    params[key] = params[key] * 0.5
+    params.update()
+    assert not render(3)[1]
