@@ -664,20 +664,25 @@ class Pilot:
           of it 1.02-1.06x.)
         * a small render (under PILOT_SHARE spp on a film under that size): one pixel
           in as many as keeps the pilot to 1 / PILOT_SHARE of the render's samples,
-          and PILOT_LANES / 8 of them at least.  Its samples price the candidates and
+          and PILOT_LANES / 4 of them at least.  Its samples price the candidates and
           are then dropped: they would cover the film unevenly, and a pass per pixel
           set to complete the round costs more than they give (the glass pane at
           64x64, 32 spp: 1.5x ``path``'s error at equal time with a kept pilot on
-          half the film, 1.36x on all of it).  Not where merging is a candidate
-          (``merging``), whose moments rest on rare samples: the SDS scene at 64x64,
-          32 spp, took 1.3-1.5x the error x time of a whole-film pilot."""
+          half the film, 1.36x on all of it).  It draws the same numbers in every
+          render, and a later render of the same scene reuses its outcome
+          (render._ReusedPilot), so it need not be the cheapest: at PILOT_LANES / 8,
+          a quarter of that film, Veach's room chose light_paths=2 connections=0
+          with the light image's first hits, 1.7x the error x time.  Not where
+          merging is a candidate (``merging``), whose moments rest on rare samples:
+          the SDS scene at 64x64, 32 spp, took 1.3-1.5x the error x time of a
+          whole-film pilot."""
         if spp > 1:
             return 1, True
         if pixels // 2 >= _pilot_lanes():
             return 2, True
         if merging:
             return 1, True
-        lanes = max(_pilot_lanes() // 8, pixels * total_spp // PILOT_SHARE)
+        lanes = max(_pilot_lanes() // 4, pixels * total_spp // PILOT_SHARE)
         return (1, True) if lanes >= pixels else (-(-pixels // lanes), False)
 
     @staticmethod

@@ -4,6 +4,8 @@ where a render's fixed cost (its pilot pass, the walks' tracing) weighs most.
     python -m benchmarks.small                 # 32 spp: Cornell box 128x128, glass pane 64x64,
                                                # Veach's bidirectional room 128x128 (../shared)
     python -m benchmarks.small --busy          # the same beside a CPU-bound job
+    python -m benchmarks.small --first         # each render as a process's first of its
+                                               # scene (no pilot of an earlier one reused)
     python -m benchmarks.small --scenes camera-behind-glass --res 256 --spp 64
                                                # another size: where the default
                                                # path-traces, its time over path's
@@ -22,6 +24,7 @@ import argparse
 import multiprocessing
 import statistics
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -50,16 +53,17 @@ def _reference(spec, scene, width: int, height: int, factor: int) -> np.ndarray:
     return np.load(cache)
 
 
-def measure(name: str, res: int, spp: int, seeds: int) -> dict:
+def measure(name: str, res: int, spp: int, seeds: int, first: bool = False) -> dict:
     spec = SCENES[name]
     width, height, factor = spec.resolution(res)
     scene = spec.load(width, height)
     ref = _reference(spec, scene, width, height, factor)
-    rows = {m.name: [] for m in (C.BDPT_AUTO, C.PATH)}
-    for m in (C.BDPT_AUTO, C.PATH):
+    auto = replace(C.BDPT_AUTO, options=(("reuse_pilot", False),)) if first else C.BDPT_AUTO
+    rows = {m.name: [] for m in (auto, C.PATH)}
+    for m in (auto, C.PATH):
         C.render(m, scene, spp, 999, spec.max_depth)                   # kernels
     for seed in range(seeds):
-        for m in (C.BDPT_AUTO, C.PATH) if seed % 2 == 0 else (C.PATH, C.BDPT_AUTO):
+        for m in (auto, C.PATH) if seed % 2 == 0 else (C.PATH, auto):
             start = time.perf_counter()
             out = C.render(m, scene, spp, 1 + seed, spec.max_depth)
             rows[m.name].append((time.perf_counter() - start, C.rel_mse(out.image[..., :3], ref)))
@@ -74,6 +78,8 @@ def main(argv=None) -> None:
     ap.add_argument("--spp", type=int, default=32)
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--busy", action="store_true", help="beside a CPU-bound job")
+    ap.add_argument("--first", action="store_true",
+                    help="no render reuses the pilot of an earlier one (render._ReusedPilot)")
     ap.add_argument("--scenes", help="comma-separated (default: %s)" % ",".join(n for n, _ in CASES))
     ap.add_argument("--res", type=int, help="the film's width for every scene (default: "
                     "each scene's size above)")
@@ -90,7 +96,7 @@ def main(argv=None) -> None:
             if SCENES[name].external and not SCENES[name].file.exists():
                 print("| %s | skipped: %s not found (../shared) | | | | | |" % (name, SCENES[name].file))
                 continue
-            r = measure(name, res, a.spp, a.seeds)
+            r = measure(name, res, a.spp, a.seeds, a.first)
             (tb, eb, _), (tp, ep, _) = r["stats"]["bdpt-auto"], r["stats"]["path"]
             print("| %s | %s | %d | %.1f ms, %.4g | %.1f ms, %.4g | **%.2f** | %.2f |"
                   % (name, r["size"], r["spp"], 1e3 * tb, eb, 1e3 * tp, ep, r["ratio"], tb / tp),

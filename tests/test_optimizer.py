@@ -261,13 +261,13 @@ def test_a_large_film_pilots_on_half_its_pixels(name, light):
 
 def test_a_small_render_pilots_on_a_few_pixels_and_drops_its_samples():
     """Under PILOT_SHARE spp on a film of fewer than 2 x PILOT_LANES pixels, the pilot
-    takes one pixel in several (Pilot.stride: 1024 lanes of 4096 pixels here, at most
+    takes one pixel in several (Pilot.stride: 2048 lanes of 4096 pixels here, at most
     1 / 128 of the render's samples) and its samples leave the image: the round has
     not ended after it, and every sample of the render comes after it.  The decision
     is the one larger films make (test_light_subpaths_for_a_point_caustic)."""
     scene = mi.load_file(scene_path("point-caustic.xml"), resx=64, resy=64)
     r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=32, seed=1, max_depth=8)
-    assert r.plan[0] == (0, 1024, 1) and r._stride == {0: 4} and r.plan[1][1] == 4096
+    assert r.plan[0] == (0, 2048, 1) and r._stride == {0: 2} and r.plan[1][1] == 4096
     r.run_pass()
     assert r.spp_done == 0 and not r.at_round_end and r.film.camera_samples == 0
     assert not np.any(r.tensor().numpy())
