@@ -271,10 +271,10 @@ class MomentSamples:
         """Per candidate (rows of ``rates``: r, kappa, light_first_hits, merging rate v,
         each relative to the pass's own rates), the second moment of its balance
         estimator relative to each pixel's squared mean (``means``), summed over these
-        samples (times
-        ``every``) and the pass's splats (a ``MomentSample`` of them, with its
-        validity, the weight of each and the pass's r = N_L / N_C), outlier pixels left out (``outliers``): an
-        estimate of the sum over the pass's camera samples.
+        samples (times ``every``) and the pass's splats (a ``MomentSample`` of them,
+        with its validity, the weight of each and the pass's r = N_L / N_C), outlier
+        pixels left out (``outliers``): an estimate of the sum over the pass's camera
+        samples.
 
         A light_first_hits candidate samples a path whose z_1 is smooth by the light
         image alone, and any other path as its base budget (r, kappa) does.  The light

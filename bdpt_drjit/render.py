@@ -476,7 +476,6 @@ class Renderer:
             self.spp - (spp if self._pilot_kept else 0), self.pixels, max_lanes,
             self.settings.samples_per_pass, self._accepted_count)
 
-
     def _replan(self, after: int) -> None:
         """The passes after pass ``after``, sized anew for the budget in force and the
         pools' capacities: after the pilot's decision, a re-decision, or a light walk
