@@ -19,7 +19,7 @@ fi
 export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb} PYTHONUNBUFFERED=1
 PY=${PY:-python3}
 RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}
-STEPS=${STEPS:-calibrate tests frozen passes breakdown divergence efficiency profile throughput memory small mlt}
+STEPS=${STEPS:-calibrate tests frozen passes breakdown divergence efficiency profile throughput memory small small-first mlt}
 EXT=${BDPT_SHARED:-../shared}/scenes/external
 mkdir -p "$OUT"
 step() {   # step NAME SECONDS COMMAND...: run with a time limit, log, report
@@ -95,3 +95,4 @@ step mlt 150 mlt
 step efficiency 110 $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3
 step memory 60 $PY -m benchmarks.memory --res "$RES" --mib 8192 --budget auto
 step small 120 $PY -m benchmarks.small --seeds 8
+step small-first 120 $PY -m benchmarks.small --seeds 8 --first
