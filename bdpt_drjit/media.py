@@ -45,6 +45,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from .emitter_kinds import AREA
 from .surface import spectrum_nonzero
 
 
@@ -83,6 +84,12 @@ def hidden(si: mi.SurfaceInteraction3f) -> mi.Bool:
     not its shape.  The light image's connections to the camera pass them too, and a
     light vertex on one is not seen (walk.py, splat.py)."""
     return si.is_valid() & (si.shape.emitter() != None)  # noqa: E711
+
+
+def camera_passes_emitters(ctx) -> bool:
+    """hide_emitters with area emitters: the camera's first ray and the light image's
+    connections to the camera pass them (``hidden``)."""
+    return ctx.settings.hide_emitters and AREA in ctx.emitters.kinds_present
 
 
 def is_boundary(si: mi.SurfaceInteraction3f) -> mi.Bool:

@@ -822,14 +822,13 @@ class Renderer:
         ctx.moments.count = cam.slot
         # Where the pilot took one pixel in several, its light image is normalized as
         # if the round had every pixel's samples, and the means are its pixels'.
-        partial = self._stride.get(index, 1) > 1
-        mean = self._luminance(self.pixels * self.plan[index][2] if partial else None)
-        filled = self._pilot_pixels(mean.shape, self._stride[index]) if partial else None
+        stride = self._stride.get(index, 1)
+        mean = self._luminance(self.pixels * self.plan[index][2] if stride > 1 else None)
+        filled = self._pilot_pixels(mean.shape, stride) if stride > 1 else None
         self.pilot.pilot_eta = ctx.mis_rates[2]
         self.pilot.costs.merge_eta = self.merge_eta(self._pilot_round - 1)
         self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean,
-                                         self.plan[index][2], filled,
-                                         self._stride.get(index, 1)).budget
+                                         self.plan[index][2], filled, stride).budget
         self._replan(self._pilot_round - 1)
 
     def _pilot_pixels(self, shape, stride: int) -> np.ndarray:
@@ -913,7 +912,7 @@ class Renderer:
     def _walk_samples(self) -> float:
         """Camera samples of this engine's walks (``rays`` counts their rays): the
         image's that Mitsuba's path did not render, and a pilot's that were dropped."""
-        dropped = (self.passes_done > 0 and self._pilot_round > 0 and self.pass_spp(0) == 0
+        dropped = (self._pilot_round and not self._pilot_kept and self.passes_done
                    and not self._pilot_reused)
         return ((self.spp_done - self.path_tracer_spp) * self.pixels
                 + (self.plan[0][1] * self.plan[0][2] if dropped else 0))

@@ -19,7 +19,7 @@ import mitsuba as mi
 
 from . import mis
 from .emitters import AREA
-from .media import connection_key, hidden
+from .media import camera_passes_emitters, connection_key, hidden
 from .surface import Vertex, finite, spectrum_nonzero
 from .vertices import Splat
 
@@ -32,7 +32,7 @@ def light_vertex_to_camera(ctx, store, v, vertex, sample, active) -> mi.UInt32:
     cam = ctx.camera.connect(v.p, sample, active)
     cos_out, ok = v.cosine(cam.d)
     active = cam.valid & ok
-    hides = ctx.settings.hide_emitters and AREA in ctx.emitters.kinds_present
+    hides = camera_passes_emitters(ctx)
     if hides:                   # the camera's rays pass area emitters (media.hidden)
         active &= ~(v.surface & hidden(v.si))
     f, rev_w = v.eval_adjoint(cam.d, active)

@@ -35,7 +35,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import connect, merge, mis, splat
-from .emitters import AREA
+from .media import camera_passes_emitters
 from .surface import IMPORTANCE, RADIANCE, Vertex, VertexRecord, adjoint_correction, spectrum_nonzero
 from .vertices import NONE, LightVertex
 
@@ -223,7 +223,8 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
     def step(state: PathState, u: DepthSamples, sampler):
         t = state.depth + 1
         first = state.depth == 1
-        flight, v = _next_vertex(ctx, state, sampler, first if _hides_emitters(ctx) else None)
+        flight, v = _next_vertex(ctx, state, sampler,
+                                 first if camera_passes_emitters(ctx) else None)
         state.hit |= first & flight.medium
         if ctx.emitters.environment is not None:
             _add(ctx, state, 0, t, connect.environment_hit(ctx, state, flight))
@@ -309,15 +310,10 @@ def _vm_shares(ctx) -> bool:
     return ctx.moments is not None and ctx.weights.merges_evaluated
 
 
-def _hides_emitters(ctx) -> bool:
-    """hide_emitters with area emitters: the camera's first ray passes them (media.hidden)."""
-    return ctx.settings.hide_emitters and AREA in ctx.emitters.kinds_present
-
-
 def _next_vertex(ctx, state: PathState, sampler, past_emitters=None):
     """The vertex the ray reaches (media: past null collisions and boundaries, with the
     free flights' weight); lanes whose ray escapes stop (``flight.escaped``).
-    ``past_emitters``: lanes whose ray passes area emitters (``_hides_emitters``)."""
+    ``past_emitters``: lanes whose ray passes area emitters (media.camera_passes_emitters)."""
     flight = ctx.media.next_vertex(state, sampler, state.active, past_emitters)
     state.rays += flight.rays
     state.active = flight.surface | flight.medium
