@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The GPU checks of the open issues, in one run (a lent GPU machine's time is short):
 # the tests under cuda_ad_rgb, then the benchmarks at 1024x1024.  Each step's output
-# goes to $OUT (default ./gpu-out) and the run goes on after a failed step.
+# goes to $OUT (default ./gpu-out) and the run goes on after a failed step.  Steps run in
+# the order STEPS names them, each within its own limit and all within DEADLINE seconds
+# (a lease is 15 minutes): a step that would start with under 30 s left is skipped.
 #   BDPT_SHARED=<shared> bash benchmarks/gpu_check.sh            # on the GPU machine
 #   VARIANT=llvm_ad_rgb RES=64 SPP=8 STEPS="efficiency profile" bash benchmarks/gpu_check.sh
 #                                                                # a dry run on a CPU
@@ -18,13 +20,17 @@ for f in glob.glob('.whl/*.whl') + glob.glob('.whl/*.zip'): zipfile.ZipFile(f).e
 fi
 export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb} PYTHONUNBUFFERED=1
 PY=${PY:-python3}
-RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}
-STEPS=${STEPS:-calibrate tests frozen passes breakdown divergence efficiency profile throughput memory small small-first mlt}
+RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}; DEADLINE=${DEADLINE:-540}
+STEPS=${STEPS:-tests frozen passes efficiency profile small small-first breakdown divergence throughput memory mlt calibrate}
 EXT=${BDPT_SHARED:-../shared}/scenes/external
 mkdir -p "$OUT"
-step() {   # step NAME SECONDS COMMAND...: run with a time limit, log, report
+step() {   # step NAME SECONDS COMMAND...: run within its limit and the deadline, log, report
     local name=$1 limit=$2; shift 2
-    case " $STEPS " in *" $name "*) ;; *) return ;; esac
+    local left=$((DEADLINE - SECONDS))
+    if [ "$left" -lt 30 ]; then
+        echo "== $name: skipped, ${left} s left" | tee -a "$OUT/summary.txt"; return
+    fi
+    [ "$limit" -gt "$left" ] && limit=$left
     local start=$SECONDS
     timeout "$limit" bash -c "$*" > "$OUT/$name.log" 2>&1
     echo "== $name: exit $? in $((SECONDS - start)) s" | tee -a "$OUT/summary.txt"
@@ -44,12 +50,14 @@ throughput() {   # samples per second against path, the same two scenes
     $PY -m benchmarks.throughput --no-cold --res "$RES" --spp 16 --max-depth 7 \
         --scene "$EXT/veach-bidir/scene.xml"
 }
-passes() {   # per-pass wall and kernel time; pass sizes, vcm (issue 30's target: <= 1.5x
-             # veach's time per sample) and pssmlt against path
-    $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 --repeats 2 --methods veach-2g,veach,veach-separate-calls,default
-    $PY -m benchmarks.gpu_passes --res "$RES" --spp 4 --repeats 1 --methods veach,vcm,pssmlt
+passes() {   # samples per second against path (issue 29: Veach's BDPT in Veach's room and at
+             # max_depth 65; the Cornell box is the frozen step's), and vcm's time per
+             # sample against Veach's BDPT (issue 30's target: <= 1.5x)
     $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 --repeats 2 --max-depth 7 \
-        --scene "$EXT/veach-bidir/scene.xml" --methods veach-2g,veach,veach-separate-calls,default
+        --scene "$EXT/veach-bidir/scene.xml" --methods veach,default
+    $PY -m benchmarks.gpu_passes --res "$RES" --spp 4 --repeats 1 --methods veach,vcm
+    $PY -m benchmarks.gpu_passes --res "$RES" --spp 4 --repeats 1 --max-depth 65 \
+        --scene scenes/deep-box.xml --methods veach
 }
 breakdown() {   # the camera walk without connections, and with neither light walk nor them
     for b in "light_paths=1 connections=0" "light_paths=0 connections=0"; do
@@ -82,17 +90,16 @@ frozen() {   # passes replaying recorded walks under CUDA (BDPT_FREEZE_CUDA=1): 
     BDPT_FREEZE_CUDA=1 $PY -m benchmarks.small --seeds 8
 }
 export -f profile throughput passes breakdown divergence mlt frozen; export PY RES EXT
-step calibrate 90 $PY -m bdpt_drjit calibrate --variant "$BDPT_VARIANT"
-step profile 60 profile
-step throughput 100 throughput
-step passes 150 passes
-step breakdown 40 breakdown
-step divergence 90 divergence
-step tests 160 $PY -m pytest -q -p no:cacheprovider -n "${JOBS:-8}" --ignore tests/test_cluster.py \
-    -k \'not spectral_and_mono and not variant_switch and not specfilm\'
-step frozen 150 frozen
-step mlt 150 mlt
-step efficiency 110 $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3
-step memory 60 $PY -m benchmarks.memory --res "$RES" --mib 8192 --budget auto
-step small 120 $PY -m benchmarks.small --seeds 8
-step small-first 120 $PY -m benchmarks.small --seeds 8 --first
+declare -A LIMIT=([calibrate]=90 [profile]=60 [throughput]=100 [passes]=120 [breakdown]=40
+    [divergence]=90 [tests]=200 [frozen]=150 [mlt]=150 [efficiency]=110 [memory]=60
+    [small]=120 [small-first]=120)
+declare -A COMMAND=(
+    [calibrate]="$PY -m bdpt_drjit calibrate --variant $BDPT_VARIANT"
+    [tests]="$PY -m pytest -q -p no:cacheprovider -n ${JOBS:-12} --ignore tests/test_cluster.py -k 'not spectral_and_mono and not variant_switch and not specfilm'"
+    [efficiency]="$PY -m benchmarks.efficiency --res $RES --spp $SPP --seeds 3"
+    [memory]="$PY -m benchmarks.memory --res $RES --mib 8192 --budget auto"
+    [small]="$PY -m benchmarks.small --seeds 8"
+    [small-first]="$PY -m benchmarks.small --seeds 8 --first")
+for name in $STEPS; do
+    step "$name" "${LIMIT[$name]}" "${COMMAND[$name]:-$name}"
+done
