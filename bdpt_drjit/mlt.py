@@ -715,14 +715,18 @@ class MLTRenderer:
 
     def _resample(self, weights: np.ndarray) -> mi.UInt32:
         """``chains`` bootstrap samples drawn in proportion to ``weights``, stratified
-        (chain c takes the quantile (c + u_c) / chains: the picks ascend with c)."""
-        dist = mi.DiscreteDistribution(device_array(mi.Float, weights.astype(np.float32)))
+        (chain c takes the quantile (c + u_c) / chains: the picks ascend with c).  The
+        cumulative sum is the host's, in float64: a device scan of float32 (Mitsuba's
+        DiscreteDistribution) adds in an order that varies between runs under CUDA
+        (two renders of one seed started other chains, seen on an H100), and drops a
+        weight 2^-24 of those before it."""
+        cdf = np.cumsum(weights, dtype=np.float64)
         chain = dr.arange(mi.UInt32, self.chains)
-        u = ((mi.Float(chain) + pss.hash_uniform(self._key(0xB1), chain, 0))
-             / dr.opaque(mi.Float, self.chains))
-        pick = dist.sample(dr.minimum(u, 0.99999994))
-        self.start_states = len(np.unique(pick.numpy()))
-        return pick
+        u = pss.hash_uniform(self._key(0xB1), chain, 0).numpy().astype(np.float64)
+        quantile = (np.arange(self.chains) + u) / self.chains * cdf[-1]
+        pick = np.minimum(np.searchsorted(cdf, quantile, side="right"), len(cdf) - 1)
+        self.start_states = len(np.unique(pick))
+        return device_array(mi.UInt32, pick.astype(np.uint32))
 
     def _evaluate_vectors(self, lanes: int, keys, identity: mi.UInt32, x: dict) -> Evaluation:
         """The BDPT sample of each lane's vectors ``x`` (None: hashed from ``keys``

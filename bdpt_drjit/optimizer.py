@@ -664,8 +664,9 @@ class Pilot:
           of it 1.02-1.06x.)
         * a small render (under PILOT_SHARE spp on a film under that size): one pixel
           in as many as keeps the pilot to 1 / PILOT_SHARE of the render's samples,
-          and PILOT_LANES / 4 of them at least.  Its samples price the candidates and
-          are then dropped: they would cover the film unevenly, and a pass per pixel
+          and PILOT_LANES / 4 of them at least (every pixel where the film has fewer:
+          a GPU's 64x64 and 128x128).  Its samples price the candidates and are then
+          dropped: they would cover the film unevenly, and a pass per pixel
           set to complete the round costs more than they give (the glass pane at
           64x64, 32 spp: 1.5x ``path``'s error at equal time with a kept pilot on
           half the film, 1.36x on all of it).  It draws the same numbers in every
@@ -683,7 +684,7 @@ class Pilot:
         if merging:
             return 1, True
         lanes = max(_pilot_lanes() // 4, pixels * total_spp // PILOT_SHARE)
-        return (1, True) if lanes >= pixels else (-(-pixels // lanes), False)
+        return max(1, -(-pixels // lanes)), False
 
     @staticmethod
     def moment_every(lanes: int, spp: int, unmerged_vcm: bool = False) -> int:

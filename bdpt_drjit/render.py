@@ -463,14 +463,12 @@ class Renderer:
                                    or Pilot.spp(self.pixels, self.spp))
         stride, self._pilot_kept = Pilot.stride(self.pixels, spp, self.spp,
                                                 self.settings.merging)
-        if stride == 1:
-            pilot_round = [(0, self.pixels, spp)]
-        elif self._pilot_kept:
+        if self._pilot_kept and stride == 2:
             pilot_round = [(0, (self.pixels + 1) // 2, spp), (1, self.pixels // 2, spp)]
             self._stride = {0: 2, 1: 2}
         else:
             pilot_round = [(0, -(-self.pixels // stride), spp)]
-            self._stride = {0: stride}
+            self._stride = {0: stride} if stride > 1 else {}
         self._pilot_round = len(pilot_round)
         self.plan = pilot_round + plan_passes(
             self.spp - (spp if self._pilot_kept else 0), self.pixels, max_lanes,

@@ -68,8 +68,13 @@ sys.exit(0 if t < 5.4 else 1)   # t_{14 dof} quantile at p = 1e-4
 
 def assert_agrees_in_variant(variant: str, scene: str, integrator: str) -> None:
     """bdpt and Mitsuba's ``integrator`` agree (whole-image mean, 8 seeds each) in
-    another variant, in a subprocess (a process keeps the variant it renders in)."""
+    another variant, in a subprocess (a process keeps the variant it renders in).
+    Skipped where Mitsuba was installed without that variant (a GPU machine's
+    stripped wheel)."""
+    import importlib.util
     import subprocess
+    if importlib.util.find_spec(f"mitsuba.{variant}") is None:
+        pytest.skip(f"Mitsuba's {variant} variant is not installed here")
     p = subprocess.run([sys.executable, "-c", _VARIANT_CHECK, variant, scene, integrator],
                        capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stdout + p.stderr

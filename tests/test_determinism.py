@@ -100,7 +100,7 @@ def test_a_small_render_reuses_the_pilot_of_an_earlier_one(scene):
         return r, reused
 
     cold, reused = render(3, reuse_pilot=False)
-    assert not reused and cold.plan[0][1] < cold.pixels          # a dropped pilot
+    assert not reused and not cold._pilot_kept                   # a dropped pilot
     render(5)
     render(5)                   # (the first render settles the scene's literals)
     warm, reused = render(3)

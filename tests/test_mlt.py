@@ -189,6 +189,22 @@ def test_chains_capped_by_the_bootstrap():
     assert r.chains == planned
 
 
+def test_start_states_are_drawn_in_proportion_beside_a_large_weight():
+    """The chains' start states are bootstrap samples drawn in proportion to their
+    weights, by a float64 cumulative sum on the host: 4096 weights of 1 after one of
+    2^25 get their share of 2^16 chains, 8 (a float32 scan, Mitsuba's
+    DiscreteDistribution's, dropped them all; under CUDA its order of additions also
+    varied between runs of one seed), and the same key draws the same states."""
+    from types import SimpleNamespace
+    weights = np.ones(4097)
+    weights[0] = 2.0 ** 25
+    mock = SimpleNamespace(chains=1 << 16, _key=lambda *v: dr.opaque(mi.UInt32, 7))
+    pick = mlt.MLTRenderer._resample(mock, weights).numpy()
+    assert np.all(np.diff(pick.astype(np.int64)) >= 0)
+    assert 7 <= np.count_nonzero(pick) <= 9 and mock.start_states == np.count_nonzero(pick) + 1
+    np.testing.assert_array_equal(mlt.MLTRenderer._resample(mock, weights).numpy(), pick)
+
+
 def test_acceptance_of_small_and_large_steps():
     """The tally of small and large steps: large steps only count no small ones and
     the reverse; the mean acceptance per iteration is the proposals' mean of both."""

@@ -261,13 +261,16 @@ def test_a_large_film_pilots_on_half_its_pixels(name, light):
 
 def test_a_small_render_pilots_on_a_few_pixels_and_drops_its_samples():
     """Under PILOT_SHARE spp on a film of fewer than 2 x PILOT_LANES pixels, the pilot
-    takes one pixel in several (Pilot.stride: 2048 lanes of 4096 pixels here, at most
-    1 / 128 of the render's samples) and its samples leave the image: the round has
-    not ended after it, and every sample of the render comes after it.  The decision
-    is the one larger films make (test_light_subpaths_for_a_point_caustic)."""
+    takes one pixel in several, at most 1 / 128 of the render's samples and PILOT_LANES
+    / 4 lanes at least (Pilot.stride: 2048 lanes of 4096 pixels on the CPU, all of them
+    under CUDA), and its samples leave the image: the round has not ended after it,
+    and every sample of the render comes after it.  The decision is the one larger
+    films make (test_light_subpaths_for_a_point_caustic)."""
     scene = mi.load_file(scene_path("point-caustic.xml"), resx=64, resy=64)
     r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=32, seed=1, max_depth=8)
-    assert r.plan[0] == (0, 2048, 1) and r._stride == {0: 2} and r.plan[1][1] == 4096
+    stride = 1 if mi.variant().startswith("cuda") else 2   # PILOT_LANES / 4: 2^15, 2^11
+    assert r.plan[0] == (0, 4096 // stride, 1) and r._stride.get(0, 1) == stride
+    assert r.plan[1][1] == 4096 and not r._pilot_kept
     r.run_pass()
     assert r.spp_done == 0 and not r.at_round_end and r.film.camera_samples == 0
     assert not np.any(r.tensor().numpy())
@@ -288,9 +291,15 @@ def test_a_small_render_pilots_on_a_few_pixels_and_drops_its_samples():
     assert vcm.plan[0] == (0, 4096, 1) and vcm._pilot_kept
 
 
-def test_a_small_renders_image_is_unbiased():
+@pytest.mark.parametrize("pilot_lanes", [None, 1 << 17])
+def test_a_small_renders_image_is_unbiased(pilot_lanes, monkeypatch):
     """A render after a pilot whose samples were dropped: the light image is normalized
-    by the camera samples after it alone (the point-light caustic, 16 spp)."""
+    by the camera samples after it alone (the point-light caustic, 16 spp).  With a
+    GPU's PILOT_LANES the pilot takes every pixel, and drops them too (it kept them,
+    and was run in every render: seen on an H100)."""
+    from bdpt_drjit import optimizer
+    if pilot_lanes:
+        monkeypatch.setitem(optimizer.PILOT_LANES, "llvm", pilot_lanes)
     scene = mi.load_file(scene_path("point-caustic.xml"), resx=64, resy=64)
     ours = []
     for seed in range(8):
