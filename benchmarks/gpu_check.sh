@@ -79,15 +79,13 @@ mlt() {   # issue 31: MMLT's chains and mutations per second against path, then 
     $PY -m benchmarks.mlt_door --ref-spp 16384 --scene scenes/cornell-box.xml --seconds 5 \
         --plan-mpp 256 --runs 2 --methods "mlt,bdpt (auto)"
 }
-frozen() {   # passes replaying recorded walks under CUDA (BDPT_FREEZE_CUDA=1): the
-             # recording's tests, then per-pass times against traced passes
-    BDPT_FREEZE_CUDA=1 $PY -m pytest -q -p no:cacheprovider tests/test_frozen.py \
-        tests/test_schedule.py tests/test_kernels.py
+frozen() {   # passes replaying recorded walks under CUDA (the default) against traced ones
+             # (BDPT_FREEZE_CUDA=0): per-pass times at 1024x1024, and small renders
     for f in 0 1; do
         BDPT_FREEZE_CUDA=$f $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 --repeats 2 \
             --methods veach,default
     done
-    BDPT_FREEZE_CUDA=1 $PY -m benchmarks.small --seeds 8
+    BDPT_FREEZE_CUDA=0 $PY -m benchmarks.small --seeds 8
 }
 export -f profile throughput passes breakdown divergence mlt frozen; export PY RES EXT
 declare -A LIMIT=([calibrate]=90 [profile]=60 [throughput]=100 [passes]=120 [breakdown]=40
