@@ -142,3 +142,16 @@ def test_a_walk_that_cannot_be_recorded_is_traced(freezing):
     traced, _ = _render(scene, False, seed=1, max_depth=4)
     np.testing.assert_allclose(replayed, traced, **TOL)
     assert traced.mean() > 0
+
+
+def test_a_textured_scene_is_traced_under_cuda():
+    """Under CUDA a scene that holds texture data (here an environment map's bitmap)
+    is traced, not recorded: Dr.Jit 1.5 aborted the process recording its camera walk
+    on an H100 (tests/test_environment.py), the texture object being outside what the
+    frozen function traverses.  The Cornell box (no texture) is recorded, and the
+    CPU's backend records both."""
+    sky, box = (mi.load_file(scene_path(name), resx=16, resy=16)
+                for name in ("envmap-open.xml", "cornell-box.xml"))
+    assert frozen._reads_cuda_textures("cuda", [box, sky])
+    assert not frozen._reads_cuda_textures("cuda", [box])
+    assert not frozen._reads_cuda_textures("llvm", [sky])

@@ -438,7 +438,9 @@ def test_the_decision_compiles_nothing_and_reruns_no_walk(box):
     """The decision of a second render (new seed, so a new kappa) launches only its own
     small kernels, all from the cache.  It used to read the pilot's slot counts after
     the camera walk had run, which ran the whole walk again (~1700 operations, 23 ms at
-    256x256), and to bake kappa into a reduction kernel compiled anew each time."""
+    256x256), and to bake kappa into a reduction kernel compiled anew each time.  The
+    pilot is not reused (where the film is a small render's, as under CUDA, the second
+    render would take the first one's decision)."""
     from bdpt_drjit import optimizer
     seen = []
     original = optimizer.MomentSamples.relative_moments
@@ -455,7 +457,8 @@ def test_the_decision_compiles_nothing_and_reruns_no_walk(box):
         seen.clear()
         optimizer.MomentSamples.relative_moments = spy
         try:
-            r = sys.modules["bdpt_drjit.render"].Renderer(box, spp=32, seed=seed, max_depth=5)
+            r = sys.modules["bdpt_drjit.render"].Renderer(box, spp=32, seed=seed, max_depth=5,
+                                                          reuse_pilot=False)
             for _ in range(Pilot.PASSES):
                 r.run_pass()
         finally:
