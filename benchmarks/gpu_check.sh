@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The GPU checks of the open issues, in one run (a lent GPU machine's time is short):
 # the tests under cuda_ad_rgb, then the benchmarks at 1024x1024.  Each step's output
-# goes to $OUT (default ./gpu-out) and the run goes on after a failed step.  Steps run in
+# goes to $OUT/NAME.log (default ./gpu-out; a lent machine's $OUT returns 8 files: name 7
+# steps at most) and the run goes on after a failed step.  Steps run in
 # the order STEPS names them, each within its own limit and all within DEADLINE seconds
 # (a lease is 15 minutes): a step that would start with under 30 s left is skipped.
 #   BDPT_SHARED=<shared> bash benchmarks/gpu_check.sh            # on the GPU machine
@@ -21,7 +22,7 @@ fi
 export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb} PYTHONUNBUFFERED=1
 PY=${PY:-python3}
 RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}; DEADLINE=${DEADLINE:-540}
-STEPS=${STEPS:-tests frozen passes efficiency profile small small-first breakdown divergence throughput memory mlt calibrate}
+STEPS=${STEPS:-tests passes efficiency glass small small-first frozen profile breakdown divergence throughput memory mlt calibrate}
 EXT=${BDPT_SHARED:-../shared}/scenes/external
 mkdir -p "$OUT"
 step() {   # step NAME SECONDS COMMAND...: run within its limit and the deadline, log, report
@@ -88,7 +89,7 @@ frozen() {   # passes replaying recorded walks under CUDA (the default) against 
     BDPT_FREEZE_CUDA=0 $PY -m benchmarks.small --seeds 8
 }
 export -f profile throughput passes breakdown divergence mlt frozen; export PY RES EXT
-declare -A LIMIT=([calibrate]=90 [profile]=60 [throughput]=100 [passes]=120 [breakdown]=40
+declare -A LIMIT=([glass]=60 [calibrate]=90 [profile]=60 [throughput]=100 [passes]=120 [breakdown]=40
     [divergence]=90 [tests]=200 [frozen]=150 [mlt]=150 [efficiency]=110 [memory]=60
     [small]=120 [small-first]=120)
 declare -A COMMAND=(
@@ -96,6 +97,7 @@ declare -A COMMAND=(
     [tests]="$PY -m pytest -q -p no:cacheprovider -n ${JOBS:-12} --ignore tests/test_cluster.py -k 'not spectral_and_mono and not variant_switch and not specfilm'"
     [efficiency]="$PY -m benchmarks.efficiency --res $RES --spp $SPP --seeds 3"
     [memory]="$PY -m benchmarks.memory --res $RES --mib 8192 --budget auto"
+    [glass]="$PY -m benchmarks.gpu_passes --res $RES --spp 64 --repeats 2 --methods default --scene scenes/glass-pane.xml --timeline"
     [small]="$PY -m benchmarks.small --seeds 8"
     [small-first]="$PY -m benchmarks.small --seeds 8 --first")
 for name in $STEPS; do

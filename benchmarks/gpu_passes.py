@@ -11,7 +11,9 @@ of their pairing in surface.Vertex).
 
 Each method renders once to warm its kernels, then ``--repeats`` times with new seeds,
 interleaved with ``path``; reported are medians.  Kernel time per pass comes from one
-further render with Dr.Jit's kernel history on.
+further render with Dr.Jit's kernel history on.  ``--timeline`` then lists a default
+render pass by pass (the plan's entry, the budget, wall and kernel time): where a
+path-traced render's time goes besides Mitsuba's ``path``.
 """
 from __future__ import annotations
 
@@ -85,6 +87,27 @@ def _kernel_ms(fn, seed) -> float:
     return sum(e.get("execution_time", 0.0) for e in jit)
 
 
+def timeline(scene, spp, seed, max_depth) -> None:
+    """A default render pass by pass, kernels warm: each pass's plan entry (pixel
+    set, lanes, spp), the budget it ran, its wall time (synced) and kernel time."""
+    from bdpt_drjit.render import Renderer
+    r = Renderer(scene, spp=spp, seed=seed, max_depth=max_depth)
+    start = time.perf_counter()
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history()
+        while not r.done:
+            index, before = r.passes_done, time.perf_counter()
+            budget = str(r.budget)
+            r.run_pass()
+            dr.sync_thread()
+            jit = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
+            print("pass %2d %-28s %-44s %7.1f ms wall %7.1f ms kernels %3d launches"
+                  % (index, r.plan[index], budget[:44], 1e3 * (time.perf_counter() - before),
+                     sum(e.get("execution_time", 0.0) for e in jit), len(jit)), flush=True)
+    print("whole render %.1f ms, %d passes; budget %s"
+          % (1e3 * (time.perf_counter() - start), r.passes_done, r.budget), flush=True)
+
+
 def measure(scene, res, spp, max_depth, repeats, methods):
     pixels = res * res
     path = lambda seed: _path(scene, spp, seed, max_depth)          # noqa: E731
@@ -119,6 +142,8 @@ def main(argv=None) -> None:
     ap.add_argument("--max-depth", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--methods", default="veach-2g,veach,default,vcm,pssmlt")
+    ap.add_argument("--timeline", action="store_true",
+                    help="then a default render pass by pass")
     a = ap.parse_args(argv)
     scene = load_scene(a.scene, a.res, a.res, a.max_depth)
     s, d = a.spp, a.max_depth
@@ -133,6 +158,8 @@ def main(argv=None) -> None:
     }
     print("%s, %s, %dx%d, %d spp, max_depth %d" % (mi.variant(), a.scene, a.res, a.res, s, d))
     measure(scene, a.res, s, d, a.repeats, [(m, table[m]) for m in a.methods.split(",")])
+    if a.timeline:
+        timeline(scene, s, 40, d)
     C.film_pixels(scene)
 
 
