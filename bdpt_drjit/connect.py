@@ -172,7 +172,7 @@ def _subpath_vertices(ctx, store, state, v, connectible):
     def more(item, radiance, rays, slot):
         go = item != NONE
         if k_max >= 0:
-            s = dr.gather(mi.UInt32, store.vertices.items.s, item, go)
+            s = store.vertices.s(item, go)
             go &= s + t - 1 <= k_max
         return go
 

@@ -43,6 +43,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .backend import device_array
+
 
 class FilmAccumulator:
     # frozen.py: the camera samples so far are counted on the host, after each pass,
@@ -152,8 +154,8 @@ class FilmAccumulator:
             if data.shape != tuple(block.tensor().shape):
                 raise ValueError("bdpt: raw film block %r has shape %s, this film's is %s"
                                  % (key, data.shape, tuple(block.tensor().shape)))
-            block.put_block(mi.ImageBlock(mi.TensorXf(data), block.offset(), self.film.rfilter(),
-                                          block.has_border()))
+            block.put_block(mi.ImageBlock(device_array(mi.TensorXf, data), block.offset(),
+                                          self.film.rfilter(), block.has_border()))
         self.camera_samples += int(raw["camera_samples"])
 
     def blocks(self) -> list:
@@ -241,4 +243,4 @@ def _coverage(film: mi.Film, border: int) -> mi.TensorXf | None:
 
     width, height = (int(v) for v in film.crop_size())
     inverse = 1.0 / np.outer(axis(height), axis(width))
-    return mi.TensorXf(inverse.astype(np.float32)[..., None])
+    return device_array(mi.TensorXf, inverse.astype(np.float32)[..., None])

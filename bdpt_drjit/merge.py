@@ -167,12 +167,13 @@ class HashGrid:
         """The grid of ``store``'s vertices (vertices.LightVertexStore's pool) at radius r;
         ``photons``: also copy their merge records (``Photon``) in bucket order, with
         ``shares`` (a moment pass) the chains' ends and merge parts too."""
-        items = store.vertices.items
         capacity = store.vertices.capacity
         index = dr.arange(mi.UInt32, capacity)
         size = dr.gather(mi.UInt32, store.vertices.count, dr.zeros(mi.UInt32, capacity))
+        stored = index < dr.minimum(size, capacity)
+        items = store.vertices.gather(index, stored)    # in pool order
         # Every stored vertex that can merge: in the pool, on a surface.
-        ok = (index < dr.minimum(size, capacity)) & ~items.record.in_medium
+        ok = stored & ~items.record.in_medium
         n_buckets = max(1 << max(BUCKETS * capacity - 1, 1).bit_length(), 64)
         buckets = dr.opaque(mi.UInt32, n_buckets)
         inv_cell = dr.opaque(mi.Float, 0.5 / radius)

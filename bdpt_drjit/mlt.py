@@ -904,7 +904,7 @@ class MLTRenderer:
             image = r.tensor().numpy()
             alpha = np.zeros_like(image)
             alpha[..., ALPHA_CHANNEL] = image[..., ALPHA_CHANNEL]
-            self._alpha_image = mi.TensorXf(alpha)
+            self._alpha_image = device_array(mi.TensorXf, alpha)
             self.time += time.perf_counter() - start
         return self._alpha_image
 

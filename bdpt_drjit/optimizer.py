@@ -98,6 +98,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .backend import device_array
 from .budgets import Budget
 from .units import UnitCosts
 from .vertices import empty, gather
@@ -502,10 +503,11 @@ class PilotMeans:
         k = 2 * r + 1
         own = np.outer(_self_counts(h, r), _self_counts(w, r)) / (k * k * max(spp, 1) * cover)
         light_own = own if filled is None else own * filled * stride
-        return cls(blurred=mi.Float((_blur(image, r) / cover).ravel().astype(np.float32)),
-                   own=mi.Float(own.ravel().astype(np.float32)),
-                   light_own=mi.Float(light_own.ravel().astype(np.float32)),
-                   floor=DARK * max(mean ** 2, 1e-12))
+        # Aligned copies (backend.device_array): a kernel that reads NumPy's memory in
+        # place is compiled for its address's alignment, anew in one render of several.
+        per_pixel = lambda a: device_array(mi.Float, a.ravel().astype(np.float32))  # noqa: E731
+        return cls(blurred=per_pixel(_blur(image, r) / cover), own=per_pixel(own),
+                   light_own=per_pixel(light_own), floor=DARK * max(mean ** 2, 1e-12))
 
     def squared(self, pixel: mi.UInt32, value: mi.Float, own: mi.Float | None = None) -> mi.Float:
         """The squared mean a sample of luminance ``value`` at ``pixel`` divides by;

@@ -48,8 +48,9 @@ def test_grid_finds_each_vertex_within_r_once(radius):
     in_medium[rng.integers(0, n, 200)] = True
     record = SimpleNamespace(p=mi.Point3f(*[pts[:, i].astype(np.float32) for i in range(3)]),
                              in_medium=mi.Bool(in_medium))
-    store = SimpleNamespace(vertices=SimpleNamespace(
-        items=SimpleNamespace(record=record), count=mi.UInt32([n]), capacity=capacity))
+    store = SimpleNamespace(vertices=SimpleNamespace(       # the pool, read in order
+        gather=lambda index, active=True: SimpleNamespace(record=record),
+        count=mi.UInt32([n]), capacity=capacity))
     grid = merge.HashGrid.build(store, radius, n, photons=False)
     queries = (pts[rng.integers(0, n, 500)] + rng.normal(0.0, radius, (500, 3))).astype(np.float32)
     q = mi.Point3f(*[queries[:, i] for i in range(3)])

@@ -46,7 +46,7 @@ def _counting(connect, counts, alive):
         def more(item, n):                         # the loop's own condition
             go = item != NONE
             if k_max >= 0:
-                go &= dr.gather(mi.UInt32, store.vertices.items.s, item, go) + t - 1 <= k_max
+                go &= store.vertices.s(item, go) + t - 1 <= k_max
             return go
 
         _, n = dr.while_loop((dr.select(connectible, item, NONE), dr.zeros(mi.UInt32, dr.width(item))),
