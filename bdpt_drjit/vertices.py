@@ -46,11 +46,11 @@ class PackedVertices:
     """The pool's light vertices: their floats (and s, prim_index and in_medium as
     bits) in chunks of 4 floats read by Dr.Jit's packet gathers, the first HEAD of each
     vertex side by side in one array and the rest in another; the pointers and the
-    list's links an array each.  A connection reads a vertex from 3 cache lines
-    instead of one per field (40): the connection loop gathers a vertex of its lane's
-    light subpath at every iteration.  (Dr.Jit rounds an allocation up to a power of
-    two: two arrays of a power of two floats per vertex take what one array per
-    field does, where one array of 36 took up to 1.8x.)"""
+    list's links an array each.  A connection reads a vertex from 7 cache lines (3 for
+    its floats) instead of one per field (40): the connection loop gathers a vertex of
+    its lane's light subpath at every iteration.  (Dr.Jit rounds an allocation up to a
+    power of two: two arrays of a power of two floats per vertex take what one array
+    per field does, where one array of 36 took up to 1.8x.)"""
     head: mi.Float                   # HEAD floats per vertex (_pack)
     tail: mi.Float                   # 4 x _tail_chunks() floats per vertex
     shape: mi.ShapePtr
