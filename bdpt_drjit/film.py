@@ -230,7 +230,7 @@ def _coverage(film: mi.Film, border: int) -> mi.TensorXf | None:
         return None
     radius = rfilter.radius()
     u = np.linspace(-radius, radius, 8193)
-    w = np.array(rfilter.eval(mi.Float(u.astype(np.float32))), dtype=np.float64)
+    w = np.array(rfilter.eval(device_array(mi.Float, u.astype(np.float32))), dtype=np.float64)
     cumulative = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(u))])
 
     def axis(n: int) -> np.ndarray:

@@ -828,7 +828,7 @@ class MLTRenderer:
         if i >= dr.width(self._acceptance):      # grown by doubling (rarely)
             grown = np.zeros(2 * dr.width(self._acceptance), dtype=np.float32)
             grown[:i] = self._acceptance.numpy()[:i]
-            self._acceptance = mi.Float(grown)
+            self._acceptance = device_array(mi.Float, grown)
         dr.scatter(self._acceptance, mean_a, dr.opaque(mi.UInt32, i))
         dr.eval(self._acceptance)
 

@@ -449,7 +449,7 @@ def outliers(groups, pixels: int) -> mi.Bool:
         if moment[i] <= rest:
             break
         dropped[i] = True
-    return mi.Bool(dropped)
+    return device_array(mi.Bool, dropped)
 
 
 # Relative moments divide by max(mean^2, DARK * image mean^2): a pixel darker than

@@ -596,7 +596,7 @@ def test_a_moment_pass_without_splats_of_its_chosen_light_subpaths():
 
 
 def test_the_pilots_per_pixel_means_are_aligned_copies():
-    """PilotMeans' per-pixel arrays are copies at 64-byte alignment
+    """PilotMeans' per-pixel arrays and the outlier mask are copies at 64-byte alignment
     (backend.device_array): Dr.Jit's CPU backend reads a NumPy array in place, and a
     kernel that loads it is compiled for its address's alignment, so the decision
     compiled a small kernel anew in some renders with a new seed
@@ -609,3 +609,7 @@ def test_the_pilots_per_pixel_means_are_aligned_copies():
         means = optimizer.PilotMeans.of(image, 1, filled, 2 if filled is not None else 1)
         for values in (means.blurred, means.own, means.light_own):
             assert np.from_dlpack(values).ctypes.data % 64 == 0
+    moment = mi.Float64(np.random.default_rng(1).random(4096))
+    pixel = dr.arange(mi.UInt32, 4096)
+    dropped = optimizer.outliers([(moment, None, None, None, pixel, 0.0, None)], 4096)
+    assert np.from_dlpack(dropped).ctypes.data % 64 == 0
