@@ -324,11 +324,11 @@ def _reads_cuda_textures(backend: str, state: list) -> bool:
     only its tensor), so such a scene's walks are traced."""
     if backend != "cuda":
         return False
-    for obj in state:
-        if isinstance(obj, mi.Scene) and id(obj) not in _calls.textured:
-            params = mi.traverse(obj)
-            _calls.textured[id(obj)] = any(isinstance(params[k], mi.TensorXf)
-                                           for k in params.keys())
-        if isinstance(obj, mi.Scene) and _calls.textured[id(obj)]:
+    for scene in (obj for obj in state if isinstance(obj, mi.Scene)):
+        if id(scene) not in _calls.textured:
+            params = mi.traverse(scene)
+            _calls.textured[id(scene)] = any(isinstance(params[k], mi.TensorXf)
+                                             for k in params.keys())
+        if _calls.textured[id(scene)]:
             return True
     return False

@@ -235,9 +235,11 @@ class VertexPool(Pool):
         """The vertex's s alone (the first bit field, after 30 floats and the
         throughput: _pack)."""
         at = 30 + dr.size_v(mi.Spectrum)
-        array, per_vertex = (self.items.head, HEAD) if at < HEAD else (
-            self.items.tail, 4 * _tail_chunks())
-        value = dr.gather(mi.Float, array, item * per_vertex + at % HEAD, active)
+        if at < HEAD:
+            array, index = self.items.head, item * HEAD + at
+        else:
+            array, index = self.items.tail, item * (4 * _tail_chunks()) + at - HEAD
+        value = dr.gather(mi.Float, array, index, active)
         return dr.reinterpret_array(mi.UInt32, value)
 
 
