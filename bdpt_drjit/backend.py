@@ -13,6 +13,7 @@ from __future__ import annotations
 import ctypes
 import functools
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -78,3 +79,13 @@ def device_array(cls, values: np.ndarray):
     aligned = raw[start:start + values.nbytes].view(values.dtype).reshape(values.shape)
     aligned[...] = values
     return cls(aligned)
+
+
+def read_values(*values) -> list:
+    """Width-1 device values (sums, counts) read to the host in one copy: a read is a
+    sync on a GPU, and a decision reads several."""
+    f64 = dr.float64_array_t(mi.Float)
+    out = dr.zeros(f64, len(values))
+    for i, value in enumerate(values):
+        dr.scatter(out, f64(value), i)
+    return out.numpy().tolist()

@@ -98,7 +98,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .backend import device_array
+from .backend import device_array, read_values
 from .budgets import Budget
 from .units import UnitCosts
 from .vertices import empty, gather
@@ -407,16 +407,18 @@ def missed_bias(samples: "MomentSamples", means: "PilotMeans", shape: tuple) -> 
         return 0.0
     items = gather(items, miss)
     h, w = shape
-    value = np.sqrt(np.maximum((items.f2 + items.f2_pairs).numpy(), 0.0))
-    pixel = items.pixel.numpy().astype(np.int64)
-    every = samples.every                    # one lane in ``every`` recorded
-    s = np.bincount(pixel, value * every, h * w).reshape(h, w)
-    q = np.bincount(pixel, value * value * every, h * w).reshape(h, w)
+    f64 = dr.float64_array_t(mi.Float)
+    value = f64(dr.sqrt(dr.maximum(items.f2 + items.f2_pairs, 0.0)))
+    every = dr.opaque(f64, samples.every)    # one lane in ``every`` recorded
+    s, q = dr.zeros(f64, h * w), dr.zeros(f64, h * w)
+    dr.scatter_reduce(dr.ReduceOp.Add, s, value * every, items.pixel)
+    dr.scatter_reduce(dr.ReduceOp.Add, q, value * value * every, items.pixel)
     n = samples.lanes / float(h * w) * (2 * BLUR + 1) ** 2      # samples in a window
     k2 = float((2 * BLUR + 1) ** 2)
-    square = np.maximum((_blur(s) * k2) ** 2 - _blur(q) * k2, 0.0) / n ** 2
-    mean2 = np.maximum(np.square(means.blurred.numpy().reshape(h, w)), means.floor)
-    return float(np.mean(square / mean2))
+    square = (dr.maximum(dr.square(_blur(s, shape) * k2) - _blur(q, shape) * k2, 0.0)
+              * dr.opaque(f64, 1.0 / n ** 2))
+    mean2 = dr.maximum(dr.square(f64(means.blurred)), dr.opaque(f64, means.floor))
+    return float(dr.mean(square / mean2)[0])
 
 
 # Outlier pixels: a pixel whose pilot moment outweighs all the others together weighs
@@ -438,6 +440,9 @@ def outliers(groups, pixels: int) -> mi.Bool:
     per_pixel = dr.zeros(f64, pixels)
     for relative, _, _, _, pixel, pairs, _ in groups:
         dr.scatter_reduce(dr.ReduceOp.Add, per_pixel, relative + pairs, pixel)
+    total, largest = read_values(dr.sum(per_pixel), dr.max(per_pixel))
+    if largest <= total - largest:          # none outweighs the rest: no read of them
+        return dr.zeros(mi.Bool, pixels)
     moment = per_pixel.numpy()
     n = max(1, pixels // OUTLIER_SHARE)
     largest = np.argpartition(moment, -n)[-n:] if pixels > n else np.arange(pixels)
@@ -477,8 +482,7 @@ class PilotMeans:
     light_own: mi.Float | None = None   # a splat's per unit of value / r (own's if None)
 
     @classmethod
-    def of(cls, image: np.ndarray, spp: int, filled: np.ndarray | None = None,
-           stride: int = 1) -> "PilotMeans":
+    def of(cls, image, spp: int, filled=None, stride: int = 1) -> "PilotMeans":
         """From the pilot image's luminance (H, W) after ``spp`` camera samples per
         pixel: each sample is 1 / spp of its pixel (splats too: film.py's light image
         normalization; a wider pixel filter spreads that share over neighbours, almost
@@ -491,23 +495,37 @@ class PilotMeans:
         what the whole film's later passes estimated with BLUR's window, 1.03-1.13x
         with this one, test_optimizer.py).  There a splat counts ``stride`` times in a
         filled pixel (the film keeps the splats in the pass's pixels, scaled) and not
-        at all in another."""
-        h, w = image.shape
-        r = BLUR
-        cover, mean = 1.0, float(np.mean(image))      # share of a window with samples
+        at all in another.
+
+        The pixels' work runs on the device (a 1024x1024 film's took 150 ms of host
+        NumPy per decision on an H100's host); ``image``: a TensorXf (H, W) or NumPy
+        array, ``filled``: a flat mi.Bool or a NumPy (H, W) mask."""
+        if isinstance(image, np.ndarray):
+            image = device_array(mi.TensorXf, np.asarray(image, dtype=np.float32))
+        shape = image.shape
+        values, r, cover, inside = image.array, BLUR, 1.0, None
         if filled is not None:
-            r = int(round(BLUR / np.sqrt(max(filled.mean(), 1e-3))))
-            cover = np.maximum(_blur(filled.astype(float), r), 1.0 / (2 * r + 1) ** 2)
-            image = image * filled
-            mean = float(image.sum() / filled.sum())
-        k = 2 * r + 1
-        own = np.outer(_self_counts(h, r), _self_counts(w, r)) / (k * k * max(spp, 1) * cover)
-        light_own = own if filled is None else own * filled * stride
-        # Aligned copies (backend.device_array): a kernel that reads NumPy's memory in
-        # place is compiled for its address's alignment, anew in one render of several.
-        per_pixel = lambda a: device_array(mi.Float, a.ravel().astype(np.float32))  # noqa: E731
-        return cls(blurred=per_pixel(_blur(image, r) / cover), own=per_pixel(own),
-                   light_own=per_pixel(light_own), floor=DARK * max(mean ** 2, 1e-12))
+            if isinstance(filled, np.ndarray):
+                share, filled = float(filled.mean()), device_array(mi.Bool, filled.ravel())
+            else:
+                share = 1.0 / stride        # (Renderer._pilot_pixels: to 1 / pixels)
+            r = int(round(BLUR / np.sqrt(max(share, 1e-3))))
+            inside = dr.select(filled, 1.0, 0.0)
+            cover = dr.maximum(_blur(inside, shape, r), 1.0 / (2 * r + 1) ** 2)
+            values = values * inside
+        f64 = dr.float64_array_t(mi.Float)
+        total = dr.sum(f64(values))
+        count = f64(shape[0] * shape[1]) if inside is None else dr.sum(f64(inside))
+        total, count = read_values(total, count)
+        mean = total / max(count, 1.0)
+        y, x = rows_and_columns(shape)
+        own = (_self_counts(y, shape[0], r) * _self_counts(x, shape[1], r)
+               * dr.opaque(mi.Float, 1.0 / ((2 * r + 1) ** 2 * max(spp, 1))) / cover)
+        light_own = own if filled is None else own * inside * dr.opaque(mi.Float, stride)
+        blurred = _blur(values, shape, r) / cover
+        dr.eval(blurred, own, light_own)
+        return cls(blurred=blurred, own=own, light_own=light_own,
+                   floor=DARK * max(mean ** 2, 1e-12))
 
     def squared(self, pixel: mi.UInt32, value: mi.Float, own: mi.Float | None = None) -> mi.Float:
         """The squared mean a sample of luminance ``value`` at ``pixel`` divides by;
@@ -518,11 +536,21 @@ class PilotMeans:
         return dr.maximum(dr.square(dr.maximum(mean, 0.0)), dr.opaque(mi.Float, self.floor))
 
 
-def _self_counts(n: int, radius: int = BLUR) -> np.ndarray:
+def rows_and_columns(shape: tuple) -> tuple:
+    """Each pixel's row and column in an image (H, W) held flat (the width opaque:
+    one kernel for every film)."""
+    i = dr.arange(mi.Int32, shape[0] * shape[1])
+    width = dr.opaque(mi.Int32, shape[1])
+    y = i // width
+    return y, i - y * width
+
+
+def _self_counts(i: mi.Int32, n: int, radius: int = BLUR) -> mi.Float:
     """How often index i appears in its own window of ``radius`` over an axis of n
     extended by its edge values."""
-    i = np.arange(n)
-    return 1 + radius * ((i == 0).astype(int) + (i == n - 1))
+    last = dr.opaque(mi.Int32, n - 1)
+    edges = dr.select(i == 0, 1.0, 0.0) + dr.select(i == last, 1.0, 0.0)
+    return 1.0 + radius * edges
 
 
 # A merge query's own work (merge.visit: the 8 cells' counts read before its loop), in
@@ -621,14 +649,19 @@ def decide(cands: list[Budget], relative: np.ndarray, costs: Costs) -> Decision:
     return Decision(budget=rows[0][0], table=rows)
 
 
-def _blur(image: np.ndarray, radius: int = BLUR) -> np.ndarray:
-    """A box filter of ``radius`` (the pilot's mean is noisy)."""
-    h, w = image.shape
-    padded = np.pad(image, radius, mode="edge")
-    c = padded.cumsum(0).cumsum(1)
-    c = np.pad(c, ((1, 0), (1, 0)))
-    k = 2 * radius + 1
-    return (c[k:k + h, k:k + w] - c[:h, k:k + w] - c[k:k + h, :w] + c[:h, :w]) / (k * k)
+def _blur(values, shape: tuple, radius: int = BLUR):
+    """A box filter of ``radius`` over an image (H, W) held flat, extended by its edge
+    values (the pilot's mean is noisy): separable, 2 r + 1 gathers per axis."""
+    kind = type(values)
+    y, x = rows_and_columns(shape)
+    width, height = dr.opaque(mi.Int32, shape[1]), dr.opaque(mi.Int32, shape[0])
+    rows = kind(0.0)
+    for d in range(-radius, radius + 1):
+        rows += dr.gather(kind, values, y * width + dr.clip(x + d, 0, width - 1))
+    out = kind(0.0)
+    for d in range(-radius, radius + 1):
+        out += dr.gather(kind, rows, dr.clip(y + d, 0, height - 1) * width + x)
+    return out * (1.0 / (2 * radius + 1) ** 2)
 
 
 # A vcm render's later moment passes without merging record about this many times the

@@ -40,7 +40,8 @@ from .settings import Settings
 from . import units
 from .units import UnitCosts
 from .budgets import BDPT, PATH_TRACING, Budget, fixed_budget
-from .optimizer import MIN_SPP, QUERY_STEPS, MomentSample, MomentSamples, Pilot, luminance
+from .optimizer import (MIN_SPP, QUERY_STEPS, MomentSample, MomentSamples, Pilot, luminance,
+                        rows_and_columns)
 from .strategies import MERGE_LAYER, StrategyImages, StrategySet
 from . import backend, frozen, merge
 from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore, gather
@@ -723,8 +724,7 @@ class Renderer:
         pilot = self._is_pilot_pass(index)
         if pilot:                   # the pilot's counts, all read in the same sync
             totals += self._pilot_counts(cam)
-        dr.eval(*totals)                                # one launch, read in one sync
-        counts = [int(n[0]) for n in totals]
+        counts = [int(n) for n in backend.read_values(*totals)]   # one launch, one read
         self.last_counts = counts[:2]                   # camera walk's rays, light walk's
         self.rays += counts[0] + counts[1]
         if timer.on:
@@ -829,24 +829,24 @@ class Renderer:
                                          self.plan[index][2], filled, stride).budget
         self._replan(self._pilot_round - 1)
 
-    def _pilot_pixels(self, shape, stride: int) -> np.ndarray:
-        """The crop pixels (H, W) of a pilot pass over one pixel in ``stride``: those
-        whose index in the sampled grid (camera.sample_rays: the crop plus a sampled
-        filter border) is a multiple of it."""
-        b = camera_stage.sampled_border(self.sensor.film())
-        y, x = np.mgrid[0:shape[0], 0:shape[1]]
-        return ((y + b) * (shape[1] + 2 * b) + x + b) % stride == 0
+    def _pilot_pixels(self, shape, stride: int) -> mi.Bool:
+        """The crop pixels (H, W, flat) of a pilot pass over one pixel in ``stride``:
+        those whose index in the sampled grid (camera.sample_rays: the crop plus a
+        sampled filter border) is a multiple of it."""
+        b = dr.opaque(mi.Int32, camera_stage.sampled_border(self.sensor.film()))
+        y, x = rows_and_columns(shape)
+        grid = (y + b) * (dr.opaque(mi.Int32, shape[1]) + 2 * b) + x + b
+        return grid % dr.opaque(mi.Int32, stride) == 0
 
-    def _luminance(self, camera_samples: int | None = None) -> np.ndarray:
-        """The image so far, (H, W): the mean of its colour channels; its light image
-        normalized by ``camera_samples`` if given (film.FilmAccumulator.develop)."""
-        # Reduced by Dr.Jit, then read: NumPy's reductions over the tensor's view took
-        # 7.5 ms at 256x256, this 0.5.
+    def _luminance(self, camera_samples: int | None = None) -> mi.TensorXf:
+        """The image so far, (H, W) on the device: the mean of its colour channels; its
+        light image normalized by ``camera_samples`` if given
+        (film.FilmAccumulator.develop)."""
         image = self.film.develop(camera_samples)
         h, w, channels = image.shape
         first = dr.arange(mi.UInt32, h * w) * channels
         rgb = [dr.gather(mi.Float, image.array, first + c) for c in range(3)]
-        return ((rgb[0] + rgb[1] + rgb[2]) / 3.0).numpy().reshape(h, w)
+        return mi.TensorXf((rgb[0] + rgb[1] + rgb[2]) / 3.0, (h, w))
 
     def _light_subpaths(self, ctx, index: int, spp: int):
         """Stage 2; runs the light walk again with larger pools if one overflowed
@@ -1003,10 +1003,31 @@ class _ReusedPilot:
 
 # The calibration render: the Cornell box on a film of RES^2 pixels, so that the pilot
 # pass takes half of it at 1 sample (optimizer.Pilot.stride), and a pass of light and
-# path tracing on a film of half of it: 32768 lanes each on a CPU, 2^18 on a GPU, the
-# occupancy of real passes (on 2 cores the camera walk timed 1.8x dearer per
-# sample over 16384 lanes than over 32768; an H100 holds 132 x 2048 threads).
-CALIBRATION_RES = {"llvm": 256, "cuda": 725}
+# path tracing on a film of half of it, each at the occupancy of real passes: 32768
+# lanes on a CPU (on 2 cores the camera walk timed 1.8x dearer per sample over 16384
+# lanes than over 32768), 2^21 on a GPU (an H100 holds 132 x 2048 threads, and a
+# launch of a few of those waits on its longest lanes: at 2^18 lanes the walks and
+# Mitsuba's path were priced 1.3x apart from the 7M- and 16M-lane passes they price).
+CALIBRATION_LANES = {"llvm": 1 << 15, "cuda": 1 << 21}
+# Bytes per lane that a GPU's calibration passes may take of the memory budget (the
+# pilot pass's walks and moment samples, Veach's room's 1.9 KB at most).
+CALIBRATION_LANE_BYTES = 2048
+
+
+def _calibration_res() -> int:
+    """The calibration film's side: twice the pilot's lanes in pixels, as many as the
+    backend's default memory budget holds."""
+    lanes = CALIBRATION_LANES["cuda" if backend.is_cuda() else "llvm"]
+    lanes = min(lanes, backend.default_memory_budget() // CALIBRATION_LANE_BYTES)
+    return int(math.sqrt(2 * lanes))
+
+
+def _path_spp(pixels: int) -> int:
+    """Samples per pixel of the calibration's render of Mitsuba's path: 4, or on a GPU
+    a pass of path tracing's size (backend.path_pass_lanes) as real passes run it."""
+    if not backend.is_cuda():
+        return 4
+    return max(4, backend.path_pass_lanes(backend.default_memory_budget()) // pixels)
 
 
 def calibrate(repeats: int = 5) -> UnitCosts:
@@ -1017,7 +1038,7 @@ def calibrate(repeats: int = 5) -> UnitCosts:
     variant = mi.variant()
     print("bdpt: measuring this machine's unit costs for %s, a few seconds (stored for "
           "later renders; 'bdpt calibrate' measures again)" % variant, file=sys.stderr, flush=True)
-    res = CALIBRATION_RES["cuda" if variant.startswith("cuda") else "llvm"]
+    res = _calibration_res()
     scenes = []
     for width, height in ((res, res), (res, res // 2)):
         box = mi.cornell_box()
@@ -1057,11 +1078,12 @@ def _calibration_run(scene, half, seed: int) -> tuple:
     path = mi.load_dict({"type": "path", "max_depth": 8})
     with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
         dr.kernel_history()
-        dr.eval(mi.render(scene, integrator=path, spp=4, seed=seed))
+        spp = _path_spp(r.pixels)
+        dr.eval(mi.render(scene, integrator=path, spp=spp, seed=seed))
         dr.sync_thread()
         seconds = sum(e.get("execution_time", 0.0) for e in dr.kernel_history()
                       if e["type"] == dr.KernelType.JIT) / 1000.0
-    path_ray = seconds / (r.pixels * 4) / c.camera_rays
+    path_ray = seconds / (r.pixels * spp) / c.camera_rays
     return (camera_ray, light_ray, stored, connection, path_ray) + _merge_units(scene, seed, camera1)
 
 

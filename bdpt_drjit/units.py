@@ -28,7 +28,7 @@ import mitsuba as mi
 
 from ._version import __version__
 
-FORMAT = 3         # the file's layout and calibration; a file of another is measured again
+FORMAT = 4         # the file's layout and calibration; a file of another is measured again
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,12 @@ image of n spp has 1/n of a sample's variance and takes n times a sample's time,
 method's efficiency as a ratio to ``path``'s (> 1: better than ``path``).
 Methods: the default (``auto``) at SPP, Veach's BDPT (``light_paths=1
 connections=all``) at SPP / 2, ``path`` at 2 x SPP (roughly equal time on the CPU).
+``--budgets``: fixed budgets besides, each at SPP, listed under the table with the
+default's decision (its table of estimated relative efficiencies): what the decision
+estimates against what each budget measures.
+
+    BDPT_VARIANT=cuda_ad_rgb python -m benchmarks.efficiency --res 1024 \
+        --budgets "light_paths=0 connections=0;light_paths=0.5 connections=0"
 """
 from __future__ import annotations
 
@@ -26,9 +32,10 @@ from .scenes import SCENES
 DEFAULT_SCENES = "cornell-diffuse,camera-behind-glass,cornell-light-up,veach-bidir"
 
 
-def _renderers(spec, scene, spp: int, budgets: list):
+def _renderers(spec, scene, spp: int, budgets: list, fixed=()):
     """The methods: (spp, render(seed) -> image); the budgets the default chose are
-    appended to ``budgets``."""
+    appended to ``budgets`` (and its decisions, ``fixed``: budgets rendered besides,
+    each a string "light_paths=0.5 connections=0")."""
     import bdpt_drjit
     import mitsuba as mi
     path = mi.load_dict({"type": "path", "max_depth": spec.max_depth})
@@ -37,22 +44,23 @@ def _renderers(spec, scene, spp: int, budgets: list):
         def render(seed):
             res = bdpt_drjit.render(scene, spp=n, seed=seed, max_depth=spec.max_depth, **budget)
             if not budget:
-                budgets.append(res.stats["budget"])
+                budgets.append((res.stats["budget"], res.stats.get("decision", "")))
             return res.image[..., :3]
         return render
-    return {"default": (spp, bdpt(spp)),
+    extra = {b: (spp, bdpt(spp, **dict(kv.split("=") for kv in b.split()))) for b in fixed}
+    return {**extra, "default": (spp, bdpt(spp)),
             "Veach's BDPT": (max(spp // 2, 1), bdpt(max(spp // 2, 1), light_paths=1,
                                                    connections="all")),
             "path": (2 * spp, lambda seed: np.array(
                 mi.render(scene, integrator=path, spp=2 * spp, seed=seed))[..., :3])}
 
 
-def measure(name: str, res: int, spp: int, seeds: int) -> dict:
+def measure(name: str, res: int, spp: int, seeds: int, fixed=()) -> dict:
     spec = SCENES[name]
     width, height, _ = spec.resolution(res)
     scene = spec.load(width, height)
     budgets = []
-    methods = _renderers(spec, scene, spp, budgets)
+    methods = _renderers(spec, scene, spp, budgets, fixed)
     images = {m: [] for m in methods}
     times = {m: [] for m in methods}
     for m, (_, render) in methods.items():
@@ -72,7 +80,7 @@ def measure(name: str, res: int, spp: int, seeds: int) -> dict:
     for m in out:
         out[m]["ratio"] = out[m]["efficiency"] / base
     return {"scene": name, "size": "%dx%d" % (width, height), "methods": out,
-            "budgets": sorted(set(budgets[1:]))}
+            "budgets": sorted(set(b for b, _ in budgets[1:])), "decision": budgets[-1][1]}
 
 
 def main(argv=None) -> None:
@@ -81,10 +89,13 @@ def main(argv=None) -> None:
     ap.add_argument("--spp", type=int, default=64, help="the default's spp (default 64)")
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--scenes", default=DEFAULT_SCENES)
+    ap.add_argument("--budgets", default="", help="fixed budgets besides, ';'-separated")
     a = ap.parse_args(argv)
+    fixed = [b.strip() for b in a.budgets.split(";") if b.strip()]
     import mitsuba as mi
     print("%s, %d seeds per method; efficiency / path's (> 1: better), time per render"
           % (mi.variant(), a.seeds))
+    notes = []
     print("| scene | size | default | Veach's BDPT | path | the default's budget |\n"
           "|---|---|---|---|---|---|")
     for name in a.scenes.split(","):
@@ -92,11 +103,16 @@ def main(argv=None) -> None:
         if spec.external and not spec.file.exists():
             print("| %s | skipped: %s not found (../shared) | | | | |" % (name, spec.file))
             continue
-        r = measure(name, a.res, a.spp, a.seeds)
-        cells = ["**%.2f** (%d spp, %.0f ms)" % (v["ratio"], v["spp"], 1e3 * v["time"])
-                 for v in r["methods"].values()]
-        print("| %s | %s | %s | %s |" % (name, r["size"], " | ".join(cells),
-                                          "; ".join(r["budgets"])), flush=True)
+        r = measure(name, a.res, a.spp, a.seeds, fixed)
+        cell = lambda v: "**%.2f** (%d spp, %.0f ms)" % (v["ratio"], v["spp"], 1e3 * v["time"])  # noqa: E731
+        print("| %s | %s | %s | %s |" % (name, r["size"], " | ".join(
+            cell(r["methods"][m]) for m in ("default", "Veach's BDPT", "path")),
+            "; ".join(r["budgets"])), flush=True)
+        if fixed:
+            notes.append("%s: %s; the default %s" % (name, "; ".join(
+                "%s %s" % (b, cell(r["methods"][b])) for b in fixed), r["decision"]))
+    for line in notes:
+        print("\n" + line)
 
 
 if __name__ == "__main__":

@@ -344,7 +344,7 @@ def test_the_pixels_of_a_half_film_pilot_in_a_cropped_film(monkeypatch):
     r = sys.modules["bdpt_drjit.render"].Renderer(scene, spp=64, seed=1, max_depth=8)
     assert r._pilot_round == 2
     (w, h) = scene.sensors()[0].film().crop_size()
-    filled = r._pilot_pixels((h, w), 2).ravel()
+    filled = np.array(r._pilot_pixels((h, w), 2))
     for index, expect in ((0, True), (1, False)):
         offset, n, spp = r.plan[index]
         rays = r.camera.sample_rays(r._sampler(index, 0, n * spp, spp), offset, n, spp,

@@ -118,7 +118,7 @@ def pixel_bias(samples, means, shape, spp):
     q = np.bincount(pixel, value * value * every, h * w).reshape(h, w)
     k2 = float((2 * O.BLUR + 1) ** 2)
     n = samples.lanes / float(h * w) * k2
-    square = np.maximum((O._blur(s) * k2) ** 2 - O._blur(q) * k2, 0.0) / n ** 2
+    square = np.maximum((_blur(s, O.BLUR) * k2) ** 2 - _blur(q, O.BLUR) * k2, 0.0) / n ** 2
     mean2 = np.maximum(np.square(means.blurred.numpy().reshape(h, w)), means.floor)
     return (spp * square / mean2).ravel() / (h * w)
 
@@ -138,7 +138,7 @@ def pilot_moments(scene, spp, seed, max_depth):
                           if k else 0.0, float(c.light_first_hits), pilot._merge_rate(c, eta)]
                          for c in cands])
         means = O.PilotMeans.of(mean, spp_, filled)
-        m = pixel_moments(samples, rows, means, splats, mean.size)
+        m = pixel_moments(samples, rows, means, splats, mean.shape[0] * mean.shape[1])
         bias = pixel_bias(samples, means, mean.shape, pilot.spp) if eta > 0 else 0.0
         total = samples.relative_moments(rows, means, splats, True) / samples.lanes
         assert np.allclose(m.sum(1), total, rtol=1e-3, atol=1e-9), (m.sum(1), total)
@@ -151,9 +151,15 @@ def pilot_moments(scene, spp, seed, max_depth):
     return kept["cands"], kept["m"], pilot.costs, pilot.first.budget, kept["shape"]
 
 
+def _blur(image, radius):
+    """optimizer._blur (on the device) of a NumPy image (H, W)."""
+    import mitsuba as mi
+    from bdpt_drjit import optimizer as O
+    return np.array(O._blur(mi.Float64(image.ravel()), image.shape, radius)).reshape(image.shape)
+
+
 def blur(m, shape):
     """The box filter of the pilot's means, of radius BLUR_RADIUS (``--blur``)."""
-    from bdpt_drjit.optimizer import _blur
     return _blur(m.reshape(shape), BLUR_RADIUS).ravel()
 
 
