@@ -187,8 +187,10 @@ class _StageTimer:
             self.log.extend(dr.kernel_history())
 
     def lap(self) -> float:
+        """Kernel seconds since the last lap, the stage's queued scatters evaluated."""
         if not self.on:
             return 0.0
+        dr.eval()
         dr.sync_thread()
         entries = dr.kernel_history()
         self.log.extend(entries)
@@ -698,7 +700,7 @@ class Renderer:
         sampler.schedule_state()
         dr.eval(rays)
         ctx = self._context(index, rays, sampler, lanes, spp)
-        timer.lap()
+        rays_seconds = timer.lap()
 
         # Stage 2: light subpaths: stored light vertices and t = 1 splats.
         store, light_rays = self._light_subpaths(ctx, index, spp)
@@ -717,8 +719,10 @@ class Renderer:
 
         # Stage 4: film.
         self._put_camera(rays, cam, None if ctx.images is None else ctx.images.values, lanes)
+        film_seconds = timer.lap()
         if store is not None:
             self._put_splats(index, store, ctx, lanes, pixel_offset)
+        light_seconds += timer.lap()
         self.film.camera_samples += lanes
         totals = (dr.sum(cam.rays), dr.sum(light_rays))
         pilot = self._is_pilot_pass(index)
@@ -728,7 +732,10 @@ class Renderer:
         self.last_counts = counts[:2]                   # camera walk's rays, light walk's
         self.rays += counts[0] + counts[1]
         if timer.on:
-            self.timings[index] = (light_seconds, camera_seconds, grid_seconds)
+            # The camera side as Mitsuba's path's megakernel has it: its rays' making,
+            # the walk and the film's put; the light side with its splats' put.
+            self.timings[index] = (light_seconds, rays_seconds + camera_seconds + film_seconds,
+                                   grid_seconds)
         if pilot:
             if ctx.weights.shadow:
                 self._pending.append((index, rays, ctx, store, lanes, pixel_offset))
@@ -1052,7 +1059,9 @@ def calibrate(repeats: int = 5) -> UnitCosts:
 
 def _timed_pass(scene, seed: int, **settings):
     """The first pass of a render at 1 sample per pixel, timed: (the Renderer, kernel
-    seconds per camera sample of its light walk, camera walk and grid build)."""
+    seconds per camera sample of its light side (the walk, the splats' put), its camera
+    side (the rays' making, the walk, the film's put: as Mitsuba's path's megakernel,
+    which path_ray prices) and the grid build)."""
     r = Renderer(scene, spp=16, seed=seed, max_depth=8, unit_costs=UnitCosts(),
                  samples_per_pass=0 if settings.get("light_paths") is None else 1, **settings)
     r.timings = {}

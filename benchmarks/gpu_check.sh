@@ -88,16 +88,25 @@ frozen() {   # passes replaying recorded walks under CUDA (the default) against 
     done
     BDPT_FREEZE_CUDA=0 $PY -m benchmarks.small --seeds 8
 }
-export -f profile throughput passes breakdown divergence mlt frozen; export PY RES EXT
-declare -A LIMIT=([glass]=60 [calibrate]=90 [profile]=60 [throughput]=100 [passes]=120 [breakdown]=40
-    [divergence]=90 [tests]=200 [frozen]=150 [mlt]=150 [efficiency]=110 [memory]=60
+efficiency() {   # issue 28: the default against path, and on the first two scenes what
+                 # its decision estimated against what fixed budgets measure
+    $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3 \
+        --scenes cornell-diffuse,camera-behind-glass --budgets \
+        "light_paths=0 connections=0;light_paths=0.5 connections=0;light_paths=1 connections=0"
+    $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3 \
+        --scenes cornell-light-up,veach-bidir
+}
+export -f profile throughput passes breakdown divergence mlt frozen efficiency
+export PY RES EXT SPP
+declare -A LIMIT=([glass]=60 [host]=90 [calibrate]=90 [profile]=60 [throughput]=100 [passes]=120 [breakdown]=40
+    [divergence]=90 [tests]=200 [frozen]=150 [mlt]=150 [efficiency]=160 [memory]=60
     [small]=120 [small-first]=120)
 declare -A COMMAND=(
     [calibrate]="$PY -m bdpt_drjit calibrate --variant $BDPT_VARIANT"
     [tests]="$PY -m pytest -q -p no:cacheprovider -n ${JOBS:-12} --ignore tests/test_cluster.py -k 'not spectral_and_mono and not variant_switch and not specfilm'"
-    [efficiency]="$PY -m benchmarks.efficiency --res $RES --spp $SPP --seeds 3"
     [memory]="$PY -m benchmarks.memory --res $RES --mib 8192 --budget auto"
     [glass]="$PY -m benchmarks.gpu_passes --res $RES --spp 64 --repeats 2 --methods default --scene scenes/glass-pane.xml --timeline"
+    [host]="$PY benchmarks/experiments/gpu_host.py --res $RES --spp 64"
     [small]="$PY -m benchmarks.small --seeds 8"
     [small-first]="$PY -m benchmarks.small --seeds 8 --first")
 for name in $STEPS; do
