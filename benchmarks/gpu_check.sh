@@ -22,7 +22,7 @@ fi
 export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb} PYTHONUNBUFFERED=1
 PY=${PY:-python3}
 RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}; DEADLINE=${DEADLINE:-540}
-STEPS=${STEPS:-tests passes efficiency glass small small-first frozen profile breakdown divergence throughput memory mlt calibrate}
+STEPS=${STEPS:-tests pricing efficiency host small small-first passes frozen profile breakdown divergence throughput memory mlt calibrate glass}
 EXT=${BDPT_SHARED:-../shared}/scenes/external
 mkdir -p "$OUT"
 step() {   # step NAME SECONDS COMMAND...: run within its limit and the deadline, log, report
@@ -96,9 +96,14 @@ efficiency() {   # issue 28: the default against path, and on the first two scen
     $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3 \
         --scenes cornell-light-up,veach-bidir
 }
-export -f profile throughput passes breakdown divergence mlt frozen efficiency
+pricing() {   # issue 28: the decision's prices against fixed budgets' kernel time
+    for scene in camera-behind-glass cornell-diffuse; do
+        $PY benchmarks/experiments/pricing.py "$scene" --res "$RES" --spp 32
+    done
+}
+export -f profile throughput passes breakdown divergence mlt frozen efficiency pricing
 export PY RES EXT SPP
-declare -A LIMIT=([glass]=60 [host]=90 [calibrate]=90 [profile]=60 [throughput]=100 [passes]=120 [breakdown]=40
+declare -A LIMIT=([glass]=60 [host]=90 [pricing]=90 [calibrate]=90 [profile]=60 [throughput]=100 [passes]=120 [breakdown]=40
     [divergence]=90 [tests]=200 [frozen]=150 [mlt]=150 [efficiency]=160 [memory]=60
     [small]=120 [small-first]=120)
 declare -A COMMAND=(
