@@ -701,8 +701,17 @@ def test_a_vertex_cache_with_no_stored_vertex_reads_no_record():
     """At max_depth 2 no light vertex is stored, yet the pilot may choose a vertex
     cache (connections=2).  Its picks read record 0 of the empty pool, memory that
     earlier passes had filled: the camera walk of pass 5 crashed (a segfault; 64x64,
-    2048 spp, ~1.2M lanes per pass, Cornell box).  An empty pool now yields no pick."""
+    2048 spp, ~1.2M lanes per pass, Cornell box).  An empty pool now yields no pick.
+    The unit costs are pinned where the pilot chooses one (the tests' units of
+    2026-11-26; with other prices it may path-trace)."""
+    from bdpt_drjit.render import Renderer
+    from bdpt_drjit.units import UnitCosts
     scene = mi.load_file(scene_path("cornell-box.xml"), resx=64, resy=64)
-    res = bdpt_drjit.render(scene, spp=2048, seed=1, max_depth=2)
+    r = Renderer(scene, spp=2048, seed=1, max_depth=2, unit_costs=UnitCosts(
+        camera_ray=1.25e-7, light_ray=1.45e-7, stored_vertex=8e-8, connection=2.3e-7,
+        path_ray=1.2e-7, grid_vertex=1.9e-7, merge_step=5.6e-8))
+    while not r.done:
+        r.run_pass()
+    res = r.result()
     assert res.stats["budget"].endswith("connections=2"), res.stats["budget"]
     assert np.all(np.isfinite(res.image))
