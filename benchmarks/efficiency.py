@@ -14,7 +14,8 @@ Methods: the default (``auto``) at SPP, Veach's BDPT (``light_paths=1
 connections=all``) at SPP / 2, ``path`` at 2 x SPP (roughly equal time on the CPU).
 ``--budgets``: fixed budgets besides, each at SPP, listed under the table with the
 default's decision (its table of estimated relative efficiencies): what the decision
-estimates against what each budget measures.
+estimates against what each budget measures.  (A fixed ``light_paths=0`` runs this
+engine's camera walk; the default's path tracing runs Mitsuba's ``path``, as ``path``.)
 
     BDPT_VARIANT=cuda_ad_rgb python -m benchmarks.efficiency --res 1024 \
         --budgets "light_paths=0 connections=0;light_paths=0.5 connections=0"
