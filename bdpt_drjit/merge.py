@@ -36,12 +36,17 @@ them (a position read and a distance each) and keeps up to FOUND within r in a l
 array, the second evaluates the merge for those alone.  (One loop evaluating the
 whole merge under a mask for every item ran it for the 5 items outside r of every 6:
 a SIMD packet or a GPU warp runs a masked body as long as any of its lanes needs it.)
+With ``DEFERRED`` on, a render pass runs its queries after the camera walk, in a
+kernel of their own (``query_pool``): the walk stores each merging camera vertex
+(``defer``) and ``run_queries`` merges them, one lane per query, so a packet's lanes
+all query.  A moment pass merges in the walk (``merge_at``).
 Radius, cell size, bucket count and normalization are opaque: no kernel is
 compiled per pass or per radius.
 """
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 
 import drjit as dr
@@ -51,8 +56,9 @@ import numpy as np
 from . import mis
 from .strategies import StrategySet
 from .support import scene_bbox
-from .surface import finite, spectrum_nonzero
+from .surface import VertexRecord, finite, spectrum_nonzero
 from .optimizer import luminance
+from .vertices import Pool, gather
 
 # The default first radius, in pixel footprints at the scene's centre.  SmallVCM's
 # default, 0.003 x the scene's bounding-sphere radius, is about 1 of them in
@@ -73,6 +79,17 @@ PASS_LANES = 1 << 16
 # the diffuse box's queries find 9 within r on average, a 16-lane packet's largest
 # count 16 (Cornell box, 256x256, Veach's budget); more wait for another round.
 FOUND = 16
+# A render pass defers its merge queries (``query_pool``) where their pool, at most one
+# query per lane and camera depth, fits this share of the memory budget.
+DEFERRED_SHARE = 4
+# Whether render passes defer their queries: off (BDPT_DEFERRED_MERGES=1 turns it on,
+# the A/B of benchmarks/gpu_check.sh's step "deferred").  On the CPU, A/B in one process
+# (2026-11-27): 0.96x the time of merging in the walk on the Cornell box at Veach's
+# budget, but 1.13x at light_paths=0.25 connections=0 and 1.26x on the SDS scene at the
+# budget vcm picks there, where the queries are few and their 152-byte records cost
+# more than full packets save.  A GPU warp idles for every lane that does not query:
+# there it may pay.
+DEFERRED = os.environ.get("BDPT_DEFERRED_MERGES") == "1"
 
 
 def first_radius(scene: mi.Scene, sensor: mi.Sensor, radius: float) -> float:
@@ -380,6 +397,83 @@ def merge_at(ctx, store, state, v, active) -> mi.Spectrum:
     state.slot = ctx.moments.add(state.slot, ctx.lane, ctx.pixel, value, *u, active,
                                  total[5] * dr.square(grid.norm))
     return value
+
+
+@dataclass
+class MergeQuery:
+    """A camera vertex z_j whose merges run after the camera walk (``run_queries``):
+    what ``_merge_one`` reads of the walk's state there."""
+    record: VertexRecord    # z_j
+    beta: mi.Spectrum       # beta_E(z_j)
+    d_vcm: mi.Float         # the camera chains at z_j (mis.py)
+    d_vc: mi.Float
+    depth: mi.UInt32        # j
+    lane: mi.UInt32         # the camera lane
+
+
+def query_pool(strategies: StrategySet, lanes: int, moments: bool,
+               memory_budget: int) -> Pool | None:
+    """The pool of a render pass's deferred merge queries (``defer``, ``run_queries``;
+    allocated by the walk that fills it), or None where the camera walk merges at
+    each vertex itself (``merge_at``): a moment pass (its moment samples take slots in
+    the walk's order, and a shadow pass's merges are for them alone), no bound on
+    the depth, or a pool past 1 / DEFERRED_SHARE of ``memory_budget``.  A lane
+    queries at most once per camera vertex z_j, j <= max_depth - 1 (a merge needs
+    y_1), so the pool never overflows.
+
+    Why defer: in the walk's kernel a SIMD packet (a warp) runs each depth's query
+    loops as long as any of its lanes queries, the lanes that stopped or sit on a
+    delta surface idle (the Cornell box, 256x256, Veach's budget: 3.1 queries per lane
+    over depths 1-5, and 2.9x the packet iterations that the queries' items / 16 would
+    take; run over the queries alone, 1.9x)."""
+    depths = strategies.max_depth - 1
+    if strategies.max_camera_vertices() is not None:
+        depths = min(depths, strategies.max_camera_vertices())
+    size = lanes * max(depths, 1)
+    record = 4 * (31 + dr.size_v(mi.Spectrum) + 4)      # VertexRecord's 31 values
+    if (not DEFERRED or moments or strategies.max_depth < 0
+            or size * record * DEFERRED_SHARE > memory_budget):
+        return None
+    return Pool(MergeQuery, size, allocate=False)
+
+
+def defer(ctx, state, v, active) -> None:
+    """Camera vertex z_j's merges, put off until the walk ends (``run_queries``)."""
+    ctx.queries.append(MergeQuery(record=VertexRecord.of(v), beta=mi.Spectrum(state.beta),
+                                  d_vcm=mi.Float(state.d_vcm), d_vc=mi.Float(state.d_vc),
+                                  depth=mi.UInt32(state.depth), lane=mi.UInt32(ctx.lane)),
+                       active)
+    state.merges += dr.select(active, 1, 0)
+
+
+def run_queries(ctx, store, cam) -> None:
+    """The merges a camera walk deferred (``defer``), one lane per query, each as
+    ``merge_at`` evaluates it: its value goes to its camera lane's radiance (and the
+    merge layer), its visited items to the lane's count.  The walk's other strategies
+    are in ``cam.radiance`` already: the sum differs from the walk's own by float
+    rounding.  The pool's size stays on the device (a recorded walk reads nothing
+    back, frozen.py): the lanes past it do nothing."""
+    pool, grid = ctx.queries, ctx.grid
+    n = pool.capacity
+    index = dr.arange(mi.UInt32, n)
+    active = index < dr.gather(mi.UInt32, pool.count, dr.zeros(mi.UInt32, n))
+    q = gather(pool.items, index, active)
+    v = q.record.vertex(_at(ctx.time, q.lane, active), _at(ctx.wavelengths, q.lane, active),
+                        ctx.media.present)
+    total, items = visit(grid, store, v.p, active,
+                         lambda pos, near: _merge_one(ctx, pos, near, q, v),
+                         dr.zeros(mi.Spectrum, n), True)
+    value = dr.select(active, finite(q.beta * total * grid.norm), 0.0)
+    dr.scatter_reduce(dr.ReduceOp.Add, cam.radiance, value, q.lane, active)
+    dr.scatter_reduce(dr.ReduceOp.Add, cam.merge_items, items, q.lane, active)
+    if ctx.images is not None:
+        ctx.images.add_layer(q.lane, ctx.images.merge_layer, value, active)
+
+
+def _at(values, lane, active):
+    """A per-lane value of the pass (time, wavelengths) at ``lane``; one shared by
+    every lane as it is."""
+    return dr.gather(type(values), values, lane, active) if dr.width(values) > 1 else values
 
 
 def can_merge(strategies: StrategySet, v, depth, connectible):

@@ -44,7 +44,7 @@ from .optimizer import (MIN_SPP, QUERY_STEPS, MomentSample, MomentSamples, Pilot
                         rows_and_columns)
 from .strategies import MERGE_LAYER, StrategyImages, StrategySet
 from . import backend, frozen, merge
-from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore, gather
+from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore, Pool, gather
 from .walk import path_tracer_walk, trace_camera_subpaths, trace_light_subpaths
 
 # Bytes a pass holds per camera lane besides its light subpaths' (camera rays, the
@@ -90,6 +90,7 @@ class PassContext:
     moments: MomentSamples | None = None   # a moment pass's contributions (optimizer.py)
     mis_rates: tuple = (1.0, 1.0, 0.0)  # N_L / N_C, kappa and eta of the MIS weights
     grid: merge.HashGrid | None = None  # merging: the pass's light vertices (merge.py)
+    queries: Pool | None = None        # merging: the camera walk's deferred queries
     merge_radius: float = 0.0          # merging: this pass's radius r_i
     scene_values: tuple = ()           # support.SceneFacts.values: key the walks' recordings
 
@@ -247,7 +248,16 @@ def _recorded_camera_walk(ctx, rays, store):
     (optimizer.MomentSamples.adopt)."""
     if ctx.moments is not None:
         ctx.moments.allocate()
+    if ctx.queries is not None:
+        ctx.queries.allocate()
     cam = trace_camera_subpaths(ctx, rays, store)
+    if ctx.queries is not None:
+        # The walk's kernel with all of its outputs, its sampler's state included (a
+        # recording's outputs, frozen.py: one evaluated later would run the walk's loop
+        # again), then the merges it deferred, added to its radiance.
+        ctx.camera_sampler.schedule_state()
+        dr.eval(cam)
+        merge.run_queries(ctx, store, cam)
     return cam, None if ctx.moments is None else ctx.moments.buffers()
 
 
@@ -708,6 +718,8 @@ class Renderer:
         if ctx.merge_radius > 0 and store is not None:
             ctx.grid = merge.HashGrid.build(store, ctx.merge_radius, ctx.light_count,
                                             shares=ctx.moments is not None)
+            ctx.queries = merge.query_pool(ctx.strategies, lanes, ctx.moments is not None,
+                                           self.memory_budget)
         grid_seconds = timer.lap()
 
         # Stage 3: camera subpaths, with every strategy t >= 2.

@@ -198,9 +198,9 @@ class StrategyImages:
         self._lanes = dr.opaque(mi.UInt32, lanes)
         self.merge_layer = layers.index(MERGE_LAYER) if MERGE_LAYER in layers else None
 
-    def add_layer(self, lane, layer: int, value):
+    def add_layer(self, lane, layer: int, value, active=True):
         dr.scatter_reduce(dr.ReduceOp.Add, self.values, value,
-                          dr.opaque(mi.UInt32, layer) * self._lanes + lane)
+                          dr.opaque(mi.UInt32, layer) * self._lanes + lane, active)
 
     def add(self, lane, s, t, value):
         layer = dr.gather(mi.Int32, self.table, StrategySet.layer_slot(s, t))

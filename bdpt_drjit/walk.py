@@ -6,7 +6,8 @@
                               -> MIS to area measure -> s = 1 (next event)
                               -> s, t >= 2 (z_j to the lane's stored light vertices)
                               -> merges (``merging``: z_j with every stored light
-                                 vertex within r, merge.py) -> scatter -> roulette
+                                 vertex within r, merge.py; or, with merge.DEFERRED,
+                                 z_j stored and merged after the walk) -> scatter -> roulette
 
 ``strategy_subset`` ``ppm`` (merging alone) ends a camera subpath at the first vertex
 where it scatters smoothly: that vertex's merges render the rest.
@@ -247,10 +248,14 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
             if state.links is not None:
                 state.links += rays
         if ctx.grid is not None:                # vertex merging (merge.py)
-            merged = merge.merge_at(ctx, store, state, v, merge.can_merge(
-                ctx.strategies, v, state.depth, connectible))
-            if not ctx.weights.shadow:          # a shadow pass merges for its moments only
-                state.radiance = ctx.strategies.add_merge(ctx.images, state.radiance, ctx.lane, merged)
+            can = merge.can_merge(ctx.strategies, v, state.depth, connectible)
+            if ctx.queries is not None:         # merged after the walk (merge.run_queries)
+                merge.defer(ctx, state, v, can)
+            else:
+                merged = merge.merge_at(ctx, store, state, v, can)
+                if not ctx.weights.shadow:      # a shadow pass merges for its moments only
+                    state.radiance = ctx.strategies.add_merge(ctx.images, state.radiance,
+                                                              ctx.lane, merged)
         goes_on = walking if max_j is None else walking & (state.depth < max_j)
         delta, null = _scatter(ctx, state, v, u, goes_on, importance=False)
         # Film alpha, as Mitsuba's path: a surface the path reaches and does not pass

@@ -22,7 +22,7 @@ fi
 export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb} PYTHONUNBUFFERED=1
 PY=${PY:-python3}
 RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}; DEADLINE=${DEADLINE:-540}
-STEPS=${STEPS:-tests pricing efficiency host small small-first passes frozen profile breakdown divergence throughput memory mlt calibrate glass}
+STEPS=${STEPS:-tests pricing efficiency host small small-first passes deferred frozen profile breakdown divergence throughput memory mlt calibrate glass}
 EXT=${BDPT_SHARED:-../shared}/scenes/external
 mkdir -p "$OUT"
 step() {   # step NAME SECONDS COMMAND...: run within its limit and the deadline, log, report
@@ -88,6 +88,14 @@ frozen() {   # passes replaying recorded walks under CUDA (the default) against 
     done
     BDPT_FREEZE_CUDA=0 $PY -m benchmarks.small --seeds 8
 }
+deferred() {   # issue 30: vcm's merge queries in the camera walk (the default) against
+               # deferred to a kernel of their own (merge.DEFERRED), each per sample
+               # against Veach's BDPT in its own process
+    for d in 0 1; do
+        BDPT_DEFERRED_MERGES=$d $PY -m benchmarks.gpu_passes --res "$RES" --spp 4 --repeats 2 \
+            --methods veach,vcm
+    done
+}
 efficiency() {   # issue 28: the default against path, and on the first two scenes what
                  # its decision estimated against what fixed budgets measure
     $PY -m benchmarks.efficiency --res "$RES" --spp "$SPP" --seeds 3 \
@@ -101,10 +109,10 @@ pricing() {   # issue 28: the decision's prices against fixed budgets' kernel ti
         $PY benchmarks/experiments/pricing.py "$scene" --res "$RES" --spp 32
     done
 }
-export -f profile throughput passes breakdown divergence mlt frozen efficiency pricing
+export -f profile throughput passes breakdown divergence mlt frozen efficiency pricing deferred
 export PY RES EXT SPP
 declare -A LIMIT=([glass]=60 [host]=90 [pricing]=90 [calibrate]=90 [profile]=60 [throughput]=100 [passes]=120 [breakdown]=40
-    [divergence]=90 [tests]=200 [frozen]=150 [mlt]=150 [efficiency]=160 [memory]=60
+    [divergence]=90 [tests]=200 [frozen]=150 [deferred]=120 [mlt]=150 [efficiency]=160 [memory]=60
     [small]=120 [small-first]=120)
 declare -A COMMAND=(
     [calibrate]="$PY -m bdpt_drjit calibrate --variant $BDPT_VARIANT"

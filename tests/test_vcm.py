@@ -248,6 +248,48 @@ def test_vcm_plugin_is_bdpt_with_merging():
     assert not mi.load_dict({"type": "bdpt"}).settings.get("merging", False)
 
 
+def test_deferred_merges_are_the_walks_own(monkeypatch):
+    """With merge.DEFERRED, a render pass merges after its camera walk (merge.query_pool,
+    run_queries): the same image and merge layer as merging in the walk (merge_at), to
+    the rounding of the sums' order, and the passes really deferred, traced or replayed
+    (frozen.py); a moment pass, a depth without bound or a pool past the memory
+    budget's share merges in the walk, and so does every pass where DEFERRED is off."""
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=24, resy=24)
+    kw = dict(spp=8, seed=7, max_depth=5, samples_per_pass=2, merging=True, light_paths=1,
+              connections="all", radius=0.05, strategy_images=True)
+    pools = []
+    query_pool = merge.query_pool
+    monkeypatch.setattr(merge, "DEFERRED", True)
+
+    def recorded(*args):
+        pools.append(query_pool(*args))
+        return pools[-1]
+
+    monkeypatch.setattr(merge, "query_pool", recorded)
+    deferred = bdpt_drjit.render(scene, **kw)
+    assert pools and all(p is not None and p.size() > 0 for p in pools)
+    monkeypatch.setattr(merge, "query_pool", lambda *args: None)
+    inline = bdpt_drjit.render(scene, **kw)
+    assert deferred.merge_image.sum() > 0
+    np.testing.assert_allclose(deferred.image, inline.image, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(deferred.merge_image, inline.merge_image, rtol=1e-5, atol=1e-6)
+    # Without strategy images the walks are recorded and replayed (frozen.py).
+    del kw["strategy_images"]
+    frozen_inline = bdpt_drjit.render(scene, **kw)
+    monkeypatch.setattr(merge, "query_pool", query_pool)
+    frozen_deferred = bdpt_drjit.render(scene, **kw)
+    np.testing.assert_allclose(frozen_deferred.image, frozen_inline.image, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(frozen_deferred.image, deferred.image, rtol=1e-5, atol=1e-6)
+    strategies = SimpleNamespace(max_depth=5, max_camera_vertices=lambda: 5)
+    assert query_pool(strategies, 1024, True, 1 << 30) is None          # a moment pass
+    assert query_pool(strategies, 1024, False, 1 << 30).capacity == 4 * 1024
+    assert query_pool(SimpleNamespace(max_depth=-1, max_camera_vertices=lambda: None),
+                      1024, False, 1 << 30) is None
+    assert query_pool(strategies, 1024, False, 1 << 20) is None         # too large
+    monkeypatch.setattr(merge, "DEFERRED", False)
+    assert query_pool(strategies, 1024, False, 1 << 30) is None         # off
+
+
 # -- efficiency-aware merging: merging as a candidate of the budget decision -------------
 def _render_counting_merges(scene, monkeypatch, **kw):
     """A render, and the passes (by index) that built a hash grid and ran merge queries."""
