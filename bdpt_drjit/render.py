@@ -23,6 +23,7 @@ import functools
 import math
 import sys
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 
 import drjit as dr
@@ -1063,9 +1064,16 @@ def calibrate(repeats: int = 5) -> UnitCosts:
         box = mi.cornell_box()
         box["sensor"]["film"].update(width=width, height=height)
         scenes.append(mi.load_dict(box))
-    rows = [_calibration_run(*scenes, seed) for seed in range(repeats + 1)][1:]
+    _calibration_run(*scenes, 0)                   # (it compiles: not counted)
+    wall, cpu = time.perf_counter(), time.process_time()
+    rows = [_calibration_run(*scenes, seed) for seed in range(1, repeats + 1)]
+    share = ((time.process_time() - cpu) / max(time.perf_counter() - wall, 1e-9)
+             / max(dr.thread_count(), 1))
     measured = UnitCosts(*(float(v) for v in np.median(np.array(rows), axis=0)))
     units.save(measured)
+    busy = units.busy_warning(variant, share)
+    if busy:
+        warnings.warn(busy, stacklevel=2)
     return measured
 
 

@@ -30,6 +30,18 @@ from ._version import __version__
 
 FORMAT = 4         # the file's layout and calibration; a file of another is measured again
 
+# A CPU calibration's units where other jobs kept the cores busy misprice the budgets
+# for good (the file keeps them): one CPU-bound process beside it on 2 cores priced
+# Mitsuba's path per ray at 0.51x the camera walk's ray against 0.87x idle, a
+# connection at 0.42x against 1.77x and a stored vertex at 0 (the walks' many short
+# kernels wait for a preempted worker, path's megakernel less; benchmarks/RESULTS.md,
+# "Decisions").  It says so where its process had under BUSY_SHARE of the CPU time its
+# threads could use: Dr.Jit's workers spin for 20 ms between kernels before they sleep,
+# so an idle CPU gives them all of it (0.98-1.0 measured), one busy loop beside them
+# 0.60-0.64 and two 0.49-0.50.  (The load average lags a job that just began by a minute
+# and counts those just ended, such as the renders before the calibration.)
+BUSY_SHARE = 0.8
+
 
 @dataclass(frozen=True)
 class UnitCosts:
@@ -69,6 +81,18 @@ def _cpu_model() -> str:
     except OSError:
         pass
     return platform.processor() or platform.machine()
+
+
+def busy_warning(variant: str, cpu_share: float) -> str | None:
+    """What to tell a user whose CPU calibration ran beside other jobs (BUSY_SHARE;
+    ``cpu_share``: its process's CPU seconds per second of its runs and Dr.Jit thread),
+    or None.  (A GPU's kernels do not share its cores with other jobs.)"""
+    if not variant.startswith("llvm") or cpu_share >= BUSY_SHARE:
+        return None
+    return ("bdpt: the unit costs were measured while other jobs kept the CPU busy (the "
+            "calibration's %d threads had %.0f%% of its time): they misprice the budgets "
+            "'auto' chooses from; run 'bdpt calibrate' again on an idle machine"
+            % (dr.thread_count(), 100 * cpu_share))
 
 
 def path(variant: str | None = None) -> Path:

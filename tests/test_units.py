@@ -1,9 +1,11 @@
 """The unit costs' file (units.py): where it lives, what it holds, when it is measured
 again."""
 import json
+import sys
 
 import drjit as dr
 import mitsuba as mi
+import pytest
 
 from bdpt_drjit import units
 from bdpt_drjit.render import Renderer
@@ -64,3 +66,24 @@ def test_a_timed_pass_prices_its_camera_rays_and_film_puts():
     priced = [e for e in r.kernel_history if e["type"] == dr.KernelType.JIT]
     assert len(priced) >= 4 and all(t > 0 for t in r.timings[0][:2])
     assert [e["size"] for e in unpriced if e["size"] > 1] == []
+
+
+def test_a_calibration_on_a_busy_cpu_says_so(tmp_path, monkeypatch):
+    """Units measured while other jobs kept the cores busy misprice every later
+    decision: the calibration measures its share of the CPU time its threads could use
+    and, where it is short (units.BUSY_SHARE), warns and says how to measure again; on
+    an idle CPU, or a GPU, nothing."""
+    render = sys.modules["bdpt_drjit.render"]
+    assert units.busy_warning("llvm_ad_rgb", 0.98) is None
+    assert units.busy_warning("cuda_ad_rgb", 0.6) is None
+    assert "bdpt calibrate" in units.busy_warning("llvm_ad_rgb", 0.6)
+    if not mi.variant().startswith("llvm"):
+        return
+    monkeypatch.setenv("BDPT_CALIBRATION", str(tmp_path / "units.json"))
+    monkeypatch.setattr(render, "_calibration_run", lambda *a: tuple(range(1, 8)))
+    shares = []
+    monkeypatch.setattr(units, "busy_warning", lambda v, share: shares.append(share) or "busy")
+    with pytest.warns(UserWarning, match="busy"):
+        measured = render.calibrate(repeats=1)
+    assert len(shares) == 1 and 0 <= shares[0] < 2
+    assert units.load() == measured == UnitCosts(*range(1, 8))      # stored all the same
