@@ -524,7 +524,10 @@ class Renderer:
         light_ratio scales to its eta (optimizer.Costs.merge_eta).  Over the passes a
         merging budget would render (``_plan``, ``_replan``): after a choice without
         merging the plan's passes are larger, and their eta priced merging's queries
-        at 3x the pilot's cost on SmallVCM's large glass sphere."""
+        at 3x the pilot's cost on SmallVCM's large glass sphere.  0 where no candidate
+        merges (its plan took 0.1 ms of a 64x64 render's pilot pass)."""
+        if not self.settings.merging:
+            return 0.0
         rest = self.plan[after + 1:]
         if (not self.budget.merges and not self.settings.samples_per_pass and rest
                 and rest[0][1] == self.pixels):
