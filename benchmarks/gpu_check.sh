@@ -22,7 +22,7 @@ fi
 export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb} PYTHONUNBUFFERED=1
 PY=${PY:-python3}
 RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}; DEADLINE=${DEADLINE:-540}
-STEPS=${STEPS:-calibrate pricing efficiency deferred small small-first tests passes host frozen profile breakdown divergence throughput memory mlt glass}
+STEPS=${STEPS:-calibrate pricing efficiency deferred small small-first tests transfer passes host frozen profile breakdown divergence throughput memory mlt glass}
 EXT=${BDPT_SHARED:-../shared}/scenes/external
 mkdir -p "$OUT"
 step() {   # step NAME SECONDS COMMAND...: run within its limit and the deadline, log, report
@@ -88,6 +88,11 @@ frozen() {   # passes replaying recorded walks under CUDA (the default) against 
     done
     BDPT_FREEZE_CUDA=0 $PY -m benchmarks.small --seeds 8
 }
+transfer() {   # issue 28: how the calibration box's units price other scenes' walks
+    for scene in cornell-diffuse camera-behind-glass veach-bidir; do
+        $PY benchmarks/experiments/unit_transfer.py "$scene" --res "$RES" --spp 16
+    done
+}
 deferred() {   # issue 30: vcm's merge queries in the camera walk (the default) against
                # deferred to a kernel of their own (merge.DEFERRED), each per sample
                # against Veach's BDPT in its own process
@@ -109,10 +114,10 @@ pricing() {   # issue 28: the decision's prices against fixed budgets' kernel ti
         $PY benchmarks/experiments/pricing.py "$scene" --res "$RES" --spp 32
     done
 }
-export -f profile throughput passes breakdown divergence mlt frozen efficiency pricing deferred
+export -f profile throughput passes breakdown divergence mlt frozen efficiency pricing deferred transfer
 export PY RES EXT SPP
 declare -A LIMIT=([glass]=60 [host]=90 [pricing]=90 [calibrate]=90 [profile]=60 [throughput]=100 [passes]=120 [breakdown]=40
-    [divergence]=90 [tests]=200 [frozen]=150 [deferred]=120 [mlt]=150 [efficiency]=160 [memory]=60
+    [divergence]=90 [tests]=200 [frozen]=150 [deferred]=120 [transfer]=120 [mlt]=150 [efficiency]=160 [memory]=60
     [small]=120 [small-first]=120)
 declare -A COMMAND=(
     [calibrate]="$PY -m bdpt_drjit calibrate --variant $BDPT_VARIANT"
