@@ -22,7 +22,7 @@ fi
 export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb} PYTHONUNBUFFERED=1
 PY=${PY:-python3}
 RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}; DEADLINE=${DEADLINE:-540}
-STEPS=${STEPS:-calibrate pricing efficiency deferred small small-first tests transfer passes host frozen profile breakdown divergence throughput memory mlt glass}
+STEPS=${STEPS:-calibrate pricing efficiency deferred transfer tests passes small small-first host frozen profile breakdown divergence throughput memory mlt glass}
 EXT=${BDPT_SHARED:-../shared}/scenes/external
 mkdir -p "$OUT"
 step() {   # step NAME SECONDS COMMAND...: run within its limit and the deadline, log, report
