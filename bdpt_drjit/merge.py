@@ -426,13 +426,14 @@ def query_pool(strategies: StrategySet, lanes: int, moments: bool,
     delta surface idle (the Cornell box, 256x256, Veach's budget: 3.1 queries per lane
     over depths 1-5, and 2.9x the packet iterations that the queries' items / 16 would
     take; run over the queries alone, 1.9x)."""
+    if not DEFERRED or moments or strategies.max_depth < 0:
+        return None
     depths = strategies.max_depth - 1
     if strategies.max_camera_vertices() is not None:
         depths = min(depths, strategies.max_camera_vertices())
     size = lanes * max(depths, 1)
     record = 4 * (31 + dr.size_v(mi.Spectrum) + 4)      # VertexRecord's 31 values
-    if (not DEFERRED or moments or strategies.max_depth < 0
-            or size * record * DEFERRED_SHARE > memory_budget):
+    if size * record * DEFERRED_SHARE > memory_budget:
         return None
     return Pool(MergeQuery, size, allocate=False)
 
