@@ -23,14 +23,26 @@ Functions that trace shadow rays also return how many they traced (statistics).
 """
 from __future__ import annotations
 
+import os
+from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 
 from . import mis
 from .emitters import DIRECTIONAL, ENV
 from .media import connection_key
-from .surface import finite, spectrum_nonzero
-from .vertices import NONE
+from .surface import VertexRecord, finite, spectrum_nonzero
+from .vertices import NONE, Pool, gather
+
+# Whether render passes connect after the camera walk (``link_pool``): off
+# (BDPT_DEFERRED_CONNECTIONS=1 turns it on, the A/B of benchmarks/gpu_check.sh's step
+# "links").  In the walk, a GPU warp runs each depth's connection loop as long as any of
+# its lanes connects, inside the walk's kernel with all of its state (the Cornell box
+# at 1024x1024 on an H100: the connections 21 ns of the camera walk's 26 per lane,
+# 5x a whole sample of Mitsuba's path; RESULTS.md, "On a GPU").  Deferred, a kernel of
+# their own runs them, one lane per camera vertex that connects.
+DEFERRED = os.environ.get("BDPT_DEFERRED_CONNECTIONS") == "1"
 
 
 def _shown(ctx, state):
@@ -162,11 +174,20 @@ def stored_vertices(ctx, store, state, v, connectible):
 
 
 def _subpath_vertices(ctx, store, state, v, connectible):
-    """Every stored vertex of the lane's light subpath, in a symbolic loop along its
-    list.  The list runs y_1, y_2, ..., so the loop stops at the first vertex whose
-    path would be longer than max_depth."""
-    t = state.depth + 1
-    first = dr.gather(mi.UInt32, store.first, ctx.light_subpath(ctx.lane), connectible)
+    """Every stored vertex of the lane's light subpath (``along_subpath``)."""
+    radiance, rays, state.slot = along_subpath(ctx, store, state, v, connectible, ctx.lane,
+                                               state.radiance, state.slot)
+    return radiance, rays
+
+
+def along_subpath(ctx, store, cam, v, connectible, lane, radiance, slot):
+    """Camera vertex ``v`` (the walk's state ``cam`` there, camera lane ``lane``) to
+    every stored vertex of the lane's light subpath, in a symbolic loop along its list,
+    added to ``radiance``.  The list runs y_1, y_2, ..., so the loop stops at the first
+    vertex whose path would be longer than max_depth.  Returns the radiance, the shadow
+    rays traced and the moment slots."""
+    t = cam.depth + 1
+    first = dr.gather(mi.UInt32, store.first, ctx.light_subpath(lane), connectible)
     k_max = ctx.strategies.max_depth
 
     def more(item, radiance, rays, slot):
@@ -179,17 +200,95 @@ def _subpath_vertices(ctx, store, state, v, connectible):
     def body(item, radiance, rays, slot):
         light = store.vertex(item, True)
         on = ctx.strategies.enabled(light.s, t)
-        c, traced, groups = connect_vertices(ctx, light, on, state, v)
-        radiance = ctx.strategies.add(ctx.images, radiance, ctx.lane, light.s, t, c)
+        c, traced, groups = connect_vertices(ctx, light, on, cam, v)
+        radiance = ctx.strategies.add(ctx.images, radiance, lane, light.s, t, c)
         if groups is not None:
-            slot = ctx.moments.add(slot, ctx.lane, ctx.pixel, c, *groups, on)
+            slot = ctx.moments.add(slot, lane, ctx.pixel, c, *groups, on)
         return light.next, radiance, rays + traced, slot
 
-    _, radiance, rays, state.slot = dr.while_loop(
-        (dr.select(connectible, first, NONE), mi.Spectrum(state.radiance),
-         dr.zeros(mi.UInt32, dr.width(first)), mi.UInt32(state.slot)),
+    _, radiance, rays, slot = dr.while_loop(
+        (dr.select(connectible, first, NONE), mi.Spectrum(radiance),
+         dr.zeros(mi.UInt32, dr.width(first)), mi.UInt32(slot)),
         more, body, labels=("item", "radiance", "rays", "slot"), label="connections")
-    return radiance, rays
+    return radiance, rays, slot
+
+
+# -- connections after the camera walk (DEFERRED) ------------------------------------
+@dataclass
+class Link:
+    """A camera vertex z_j whose connections run after the camera walk
+    (``run_links``): what ``connect_vertices`` reads of the walk's state there."""
+    record: VertexRecord    # z_j
+    beta: mi.Spectrum       # beta_E(z_j)
+    d_vcm: mi.Float         # the camera chains at z_j (mis.py)
+    d_vc: mi.Float
+    lw: mi.Float            # mis="lafortune": the walk's product at z_j
+    depth: mi.UInt32        # j
+    lane: mi.UInt32         # the camera lane
+
+
+def link_bytes(strategies, budget, media: bool) -> int:
+    """Bytes per camera lane of a render pass's deferred connections (``link_pool``,
+    which render.Renderer._lanes_for adds to a lane's), or 0 where the camera walk
+    connects at each vertex itself: DEFERRED off, a budget without connections or with
+    a vertex cache, a scene with media (a connection's ratio tracking keys its numbers
+    by the walk's lane), or no bound on the depth.  A lane connects at most once per
+    camera vertex z_j, j <= max_depth - 1, so the pool never overflows."""
+    if not DEFERRED or media or not budget.connects or budget.caches or strategies.max_depth < 0:
+        return 0
+    depths = strategies.max_depth - 1
+    if strategies.max_camera_vertices() is not None:
+        depths = min(depths, strategies.max_camera_vertices())
+    return max(depths, 1) * 4 * (31 + dr.size_v(mi.Spectrum) + 5)  # VertexRecord's 31 values
+
+
+def link_pool(strategies, budget, lanes: int, moments: bool, media: bool,
+              memory_budget: int) -> Pool | None:
+    """The pool of a render pass's deferred connections (``defer``, ``run_links``;
+    allocated by the walk that fills it), or None where the walk connects
+    (``link_bytes``), in a moment pass (its samples take slots in the walk's order),
+    or where the pool would pass ``memory_budget`` (a pass of explicit size)."""
+    per_lane = link_bytes(strategies, budget, media)
+    if not per_lane or moments or lanes * per_lane > memory_budget:
+        return None
+    record = 4 * (31 + dr.size_v(mi.Spectrum) + 5)
+    return Pool(Link, lanes * per_lane // record, allocate=False)
+
+
+def defer(ctx, store, state, v, connectible) -> None:
+    """Camera vertex z_j's connections, put off until the walk ends (``run_links``):
+    where the lane's light subpath stored a vertex."""
+    first = dr.gather(mi.UInt32, store.first, ctx.light_subpath(ctx.lane), connectible)
+    ctx.links.append(Link(record=VertexRecord.of(v), beta=mi.Spectrum(state.beta),
+                          d_vcm=mi.Float(state.d_vcm), d_vc=mi.Float(state.d_vc),
+                          lw=mi.Float(state.lw), depth=mi.UInt32(state.depth),
+                          lane=mi.UInt32(ctx.lane)),
+                     connectible & (first != NONE))
+
+
+def run_links(ctx, store, cam) -> None:
+    """The connections a camera walk deferred (``defer``), one lane per camera vertex,
+    each as the walk would run them (``along_subpath``): their value goes to the
+    camera lane's radiance (and strategy images), their shadow rays to its count.  The
+    sum differs from the walk's own by float rounding.  The pool's size stays on the
+    device (a recorded walk reads nothing back, frozen.py): lanes past it do nothing."""
+    pool = ctx.links
+    n = pool.capacity
+    index = dr.arange(mi.UInt32, n)
+    active = index < dr.gather(mi.UInt32, pool.count, dr.zeros(mi.UInt32, n))
+    q = gather(pool.items, index, active)
+    v = q.record.vertex(at_lane(ctx.time, q.lane, active), at_lane(ctx.wavelengths, q.lane, active),
+                        False)
+    radiance, rays, _ = along_subpath(ctx, store, q, v, active, q.lane,
+                                      dr.zeros(mi.Spectrum, n), dr.zeros(mi.UInt32, n))
+    dr.scatter_reduce(dr.ReduceOp.Add, cam.radiance, radiance, q.lane, active)
+    dr.scatter_reduce(dr.ReduceOp.Add, cam.rays, rays, q.lane, active)
+
+
+def at_lane(values, lane, active):
+    """A per-lane value of the pass (time, wavelengths) at ``lane``; one shared by
+    every lane as it is."""
+    return dr.gather(type(values), values, lane, active) if dr.width(values) > 1 else values
 
 
 _GOLDEN = 0.6180339887498949
@@ -241,7 +340,8 @@ def connect_vertices(ctx, light, active, cam, v_c):
     f_l, rev_l_w, pdf_l_w = v_l.eval_adjoint_and_pdf(-w, active)
     contrib = cam.beta * f_c * f_l * light.beta / dist2
     traced = active & spectrum_nonzero(contrib)
-    key = connection_key(ctx, cam.depth, light.s)
+    # (Keyed by the walk's lane: deferred connections, link_pool, have no media.)
+    key = connection_key(ctx, cam.depth, light.s) if ctx.media.present else None
     tr, dens_fwd, dens_rev, rays = ctx.media.transmittance(v_c, v_l.p, v_l.sigma_t(), key, traced)
     contrib *= tr
     active = traced & spectrum_nonzero(tr)

@@ -54,6 +54,7 @@ import mitsuba as mi
 import numpy as np
 
 from . import mis
+from .connect import at_lane
 from .strategies import StrategySet
 from .support import scene_bbox
 from .surface import VertexRecord, finite, spectrum_nonzero
@@ -459,8 +460,8 @@ def run_queries(ctx, store, cam) -> None:
     index = dr.arange(mi.UInt32, n)
     active = index < dr.gather(mi.UInt32, pool.count, dr.zeros(mi.UInt32, n))
     q = gather(pool.items, index, active)
-    v = q.record.vertex(_at(ctx.time, q.lane, active), _at(ctx.wavelengths, q.lane, active),
-                        ctx.media.present)
+    v = q.record.vertex(at_lane(ctx.time, q.lane, active),
+                        at_lane(ctx.wavelengths, q.lane, active), ctx.media.present)
     total, items = visit(grid, store, v.p, active,
                          lambda pos, near: _merge_one(ctx, pos, near, q, v),
                          dr.zeros(mi.Spectrum, n), True)
@@ -469,12 +470,6 @@ def run_queries(ctx, store, cam) -> None:
     dr.scatter_reduce(dr.ReduceOp.Add, cam.merge_items, items, q.lane, active)
     if ctx.images is not None:
         ctx.images.add_layer(q.lane, ctx.images.merge_layer, value, active)
-
-
-def _at(values, lane, active):
-    """A per-lane value of the pass (time, wavelengths) at ``lane``; one shared by
-    every lane as it is."""
-    return dr.gather(type(values), values, lane, active) if dr.width(values) > 1 else values
 
 
 def can_merge(strategies: StrategySet, v, depth, connectible):

@@ -44,7 +44,7 @@ from .budgets import BDPT, PATH_TRACING, Budget, fixed_budget
 from .optimizer import (MIN_SPP, QUERY_STEPS, MomentSample, MomentSamples, Pilot, luminance,
                         rows_and_columns)
 from .strategies import MERGE_LAYER, StrategyImages, StrategySet
-from . import backend, frozen, merge
+from . import backend, connect, frozen, merge
 from .vertices import RECORD_BYTES, SPLAT_BYTES, LightVertexStore, Pool, gather
 from .walk import path_tracer_walk, trace_camera_subpaths, trace_light_subpaths
 
@@ -92,6 +92,7 @@ class PassContext:
     mis_rates: tuple = (1.0, 1.0, 0.0)  # N_L / N_C, kappa and eta of the MIS weights
     grid: merge.HashGrid | None = None  # merging: the pass's light vertices (merge.py)
     queries: Pool | None = None        # merging: the camera walk's deferred queries
+    links: Pool | None = None          # the camera walk's deferred connections (connect.py)
     merge_radius: float = 0.0          # merging: this pass's radius r_i
     scene_values: tuple = ()           # support.SceneFacts.values: key the walks' recordings
 
@@ -249,16 +250,20 @@ def _recorded_camera_walk(ctx, rays, store):
     (optimizer.MomentSamples.adopt)."""
     if ctx.moments is not None:
         ctx.moments.allocate()
-    if ctx.queries is not None:
-        ctx.queries.allocate()
+    for pool in (ctx.queries, ctx.links):
+        if pool is not None:
+            pool.allocate()
     cam = trace_camera_subpaths(ctx, rays, store)
-    if ctx.queries is not None:
+    if ctx.queries is not None or ctx.links is not None:
         # The walk's kernel with all of its outputs, its sampler's state included (a
         # recording's outputs, frozen.py: one evaluated later would run the walk's loop
-        # again), then the merges it deferred, added to its radiance.
+        # again), then the connections and merges it deferred, added to its radiance.
         ctx.camera_sampler.schedule_state()
         dr.eval(cam)
-        merge.run_queries(ctx, store, cam)
+        if ctx.links is not None:
+            connect.run_links(ctx, store, cam)
+        if ctx.queries is not None:
+            merge.run_queries(ctx, store, cam)
     return cam, None if ctx.moments is None else ctx.moments.buffers()
 
 
@@ -440,14 +445,17 @@ class Renderer:
     def _lanes_for(self, budget: Budget) -> int:
         """The camera lanes of a pass of ``budget`` that fit the memory budget: its light
         subpaths per lane (light_ratio) with their pools at the capacities in force,
-        the vertex pool only where some strategy stores a vertex.  Never more than a
+        the vertex pool only where some strategy stores a vertex, and the camera walk's
+        deferred connections (connect.link_bytes).  Never more than a
         pass of Veach's BDPT at the first capacities: on the CPU a larger pass is
         slower (each pass of a new size writes fresh memory, a page fault per 4 KiB:
         light_paths=0.25 in one pass of 63 spp took 1.11-1.16x the time of three, Cornell
         box 256x256)."""
+        links = connect.link_bytes(self.strategies, budget, self.media.present)
+
         def lanes(ratio: float, vertices: int, splats: int, stores: bool) -> int:
             pools = (vertices * RECORD_BYTES if stores else 0) + splats * SPLAT_BYTES
-            lane_bytes = (_CAMERA_LANE_BYTES + self._layer_bytes
+            lane_bytes = (_CAMERA_LANE_BYTES + self._layer_bytes + links
                           + max(ratio, 0.0) * (_LIGHT_PATH_BYTES + pools))
             return int(min(max(1024, self.memory_budget // lane_bytes), 2 ** 31))
         stores = budget.connects or (self.settings.merging and budget.merges)
@@ -725,6 +733,10 @@ class Renderer:
             ctx.queries = merge.query_pool(ctx.strategies, lanes, ctx.moments is not None,
                                            self.memory_budget)
         grid_seconds = timer.lap()
+        if store is not None:
+            ctx.links = connect.link_pool(ctx.strategies, ctx.budget, lanes,
+                                          ctx.moments is not None, ctx.media.present,
+                                          self.memory_budget)
 
         # Stage 3: camera subpaths, with every strategy t >= 2.
         cam = self._camera_walk(ctx, rays, store)

@@ -8,6 +8,7 @@
                               -> merges (``merging``: z_j with every stored light
                                  vertex within r, merge.py; or, with merge.DEFERRED,
                                  z_j stored and merged after the walk) -> scatter -> roulette
+                                 (with connect.DEFERRED, the connections of z_j too)
 
 ``strategy_subset`` ``ppm`` (merging alone) ends a camera subpath at the first vertex
 where it scatters smoothly: that vertex's merges render the rest.
@@ -242,11 +243,14 @@ def trace_camera_subpaths(ctx, rays, store) -> PathState:
             _add(ctx, state, 1, t, *connect.next_event(
                 ctx, state, v, u.endpoint, connectible & ctx.strategies.enabled(1, t)))
         if store is not None and ctx.strategies.connects:
-            state.radiance, rays = connect.stored_vertices(
-                ctx, store, state, v, connectible & ctx.strategies.connects_at(t))
-            state.rays += rays
-            if state.links is not None:
-                state.links += rays
+            at = connectible & ctx.strategies.connects_at(t)
+            if ctx.links is not None:           # connected after the walk (connect.run_links)
+                connect.defer(ctx, store, state, v, at)
+            else:
+                state.radiance, rays = connect.stored_vertices(ctx, store, state, v, at)
+                state.rays += rays
+                if state.links is not None:
+                    state.links += rays
         if ctx.grid is not None:                # vertex merging (merge.py)
             can = merge.can_merge(ctx.strategies, v, state.depth, connectible)
             if ctx.queries is not None:         # merged after the walk (merge.run_queries)

@@ -22,7 +22,7 @@ fi
 export BDPT_VARIANT=${VARIANT:-cuda_ad_rgb} PYTHONUNBUFFERED=1
 PY=${PY:-python3}
 RES=${RES:-1024}; SPP=${SPP:-128}; OUT=${OUT:-gpu-out}; DEADLINE=${DEADLINE:-540}
-STEPS=${STEPS:-calibrate pricing efficiency deferred transfer tests passes small small-first host frozen profile breakdown divergence throughput memory mlt glass}
+STEPS=${STEPS:-calibrate pricing efficiency links deferred transfer tests passes small small-first host frozen profile breakdown divergence throughput memory mlt glass}
 EXT=${BDPT_SHARED:-../shared}/scenes/external
 mkdir -p "$OUT"
 step() {   # step NAME SECONDS COMMAND...: run within its limit and the deadline, log, report
@@ -93,6 +93,16 @@ transfer() {   # issue 28: how the calibration box's units price other scenes' w
         $PY benchmarks/experiments/unit_transfer.py "$scene" --res "$RES" --spp 16
     done
 }
+links() {   # issue 29: Veach's BDPT with its connections in the camera walk (the default)
+            # against deferred to a kernel of their own (connect.DEFERRED), samples per
+            # second against path, each in its own process, the Cornell box and Veach's room
+    for d in 0 1; do
+        BDPT_DEFERRED_CONNECTIONS=$d $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 \
+            --repeats 2 --methods veach
+        BDPT_DEFERRED_CONNECTIONS=$d $PY -m benchmarks.gpu_passes --res "$RES" --spp 16 \
+            --repeats 2 --max-depth 7 --scene "$EXT/veach-bidir/scene.xml" --methods veach
+    done
+}
 deferred() {   # issue 30: vcm's merge queries in the camera walk (the default) against
                # deferred to a kernel of their own (merge.DEFERRED), each per sample
                # against Veach's BDPT in its own process
@@ -114,10 +124,10 @@ pricing() {   # issue 28: the decision's prices against fixed budgets' kernel ti
         $PY benchmarks/experiments/pricing.py "$scene" --res "$RES" --spp 32
     done
 }
-export -f profile throughput passes breakdown divergence mlt frozen efficiency pricing deferred transfer
+export -f profile throughput passes breakdown divergence mlt frozen efficiency pricing deferred links transfer
 export PY RES EXT SPP
 declare -A LIMIT=([glass]=60 [host]=90 [pricing]=90 [calibrate]=90 [profile]=60 [throughput]=100 [passes]=120 [breakdown]=40
-    [divergence]=90 [tests]=200 [frozen]=150 [deferred]=120 [transfer]=120 [mlt]=150 [efficiency]=160 [memory]=60
+    [divergence]=90 [tests]=200 [frozen]=150 [deferred]=120 [links]=150 [transfer]=120 [mlt]=150 [efficiency]=160 [memory]=60
     [small]=120 [small-first]=120)
 declare -A COMMAND=(
     [calibrate]="$PY -m bdpt_drjit calibrate --variant $BDPT_VARIANT"

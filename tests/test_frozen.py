@@ -155,3 +155,51 @@ def test_a_textured_scene_is_traced_under_cuda():
     assert frozen._reads_cuda_textures("cuda", [box, sky])
     assert not frozen._reads_cuda_textures("cuda", [box])
     assert not frozen._reads_cuda_textures("llvm", [sky])
+
+
+def test_deferred_connections_are_the_walks_own(freezing, monkeypatch):
+    """With connect.DEFERRED, a render pass connects after its camera walk
+    (connect.link_pool, run_links): the same image and strategy images as connecting
+    in the walk, to the rounding of the sums' order, traced or recorded and replayed;
+    a vertex cache, media, a moment pass, no bound on the depth or a pool past the
+    memory budget connects in the walk, and every pass does where DEFERRED is off."""
+    from types import SimpleNamespace
+    from bdpt_drjit import connect
+    from bdpt_drjit.budgets import Budget
+    scene = mi.load_file(scene_path("cornell-box.xml"), resx=24, resy=24)
+    kw = dict(spp=8, seed=7, max_depth=5, samples_per_pass=2, light_paths=1,
+              connections="all", strategy_images=True)
+    pools, link_pool = [], connect.link_pool
+
+    def recorded(*args):
+        pools.append(link_pool(*args))
+        return pools[-1]
+
+    monkeypatch.setattr(connect, "DEFERRED", True)
+    monkeypatch.setattr(connect, "link_pool", recorded)
+    deferred = bdpt_drjit.render(scene, **kw)
+    assert len(pools) == 4 and all(p is not None and p.size() > 0 for p in pools)
+    monkeypatch.setattr(connect, "DEFERRED", False)
+    inline = bdpt_drjit.render(scene, **kw)
+    assert pools[4:] and all(p is None for p in pools[4:])
+    np.testing.assert_allclose(deferred.image, inline.image, **TOL)
+    assert deferred.strategy_images.keys() == inline.strategy_images.keys()
+    for key, layer in inline.strategy_images.items():
+        np.testing.assert_allclose(deferred.strategy_images[key], layer, **TOL)
+    del kw["strategy_images"]                   # the walks recorded, then replayed
+    for seed in (7, 8):
+        frozen_inline = bdpt_drjit.render(scene, **{**kw, "seed": seed})
+        monkeypatch.setattr(connect, "DEFERRED", True)
+        frozen_deferred = bdpt_drjit.render(scene, **{**kw, "seed": seed})
+        monkeypatch.setattr(connect, "DEFERRED", False)
+        np.testing.assert_allclose(frozen_deferred.image, frozen_inline.image, **TOL)
+    monkeypatch.setattr(connect, "DEFERRED", True)
+    strategies = SimpleNamespace(max_depth=5, max_camera_vertices=lambda: 5)
+    veach, cache = Budget(1.0, "all"), Budget(1.0, 2)
+    assert link_pool(strategies, veach, 1024, False, False, 1 << 30).capacity == 4 * 1024
+    assert link_pool(strategies, veach, 1024, True, False, 1 << 30) is None     # moments
+    assert link_pool(strategies, veach, 1024, False, True, 1 << 30) is None     # media
+    assert link_pool(strategies, cache, 1024, False, False, 1 << 30) is None    # a cache
+    assert link_pool(SimpleNamespace(max_depth=-1, max_camera_vertices=lambda: None),
+                     veach, 1024, False, False, 1 << 30) is None
+    assert link_pool(strategies, veach, 1024, False, False, 1 << 19) is None    # too large
