@@ -104,11 +104,13 @@ links() {   # issue 29: Veach's BDPT with its connections in the camera walk (th
     done
 }
 deferred() {   # issue 30: vcm's merge queries in the camera walk (the default) against
-               # deferred to a kernel of their own (merge.DEFERRED), each per sample
-               # against Veach's BDPT in its own process
-    for d in 0 1; do
-        BDPT_DEFERRED_MERGES=$d $PY -m benchmarks.gpu_passes --res "$RES" --spp 4 --repeats 2 \
-            --methods veach,vcm
+               # deferred to a kernel of their own (merge.DEFERRED), then with its
+               # connections deferred too (connect.DEFERRED), each per sample against
+               # Veach's BDPT in its own process
+    for d in "0 0" "1 0" "1 1"; do
+        set -- $d
+        BDPT_DEFERRED_MERGES=$1 BDPT_DEFERRED_CONNECTIONS=$2 $PY -m benchmarks.gpu_passes \
+            --res "$RES" --spp 4 --repeats 2 --methods veach,vcm
     done
 }
 efficiency() {   # issue 28: the default against path, and on the first two scenes what
@@ -127,7 +129,7 @@ pricing() {   # issue 28: the decision's prices against fixed budgets' kernel ti
 export -f profile throughput passes breakdown divergence mlt frozen efficiency pricing deferred links transfer
 export PY RES EXT SPP
 declare -A LIMIT=([glass]=60 [host]=90 [pricing]=90 [calibrate]=90 [profile]=60 [throughput]=100 [passes]=120 [breakdown]=40
-    [divergence]=90 [tests]=200 [frozen]=150 [deferred]=120 [links]=150 [transfer]=120 [mlt]=150 [efficiency]=160 [memory]=60
+    [divergence]=90 [tests]=200 [frozen]=150 [deferred]=180 [links]=150 [transfer]=120 [mlt]=150 [efficiency]=160 [memory]=60
     [small]=120 [small-first]=120)
 declare -A COMMAND=(
     [calibrate]="$PY -m bdpt_drjit calibrate --variant $BDPT_VARIANT"
