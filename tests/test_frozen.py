@@ -161,8 +161,9 @@ def test_deferred_connections_are_the_walks_own(freezing, monkeypatch):
     """With connect.DEFERRED, a render pass connects after its camera walk
     (connect.link_pool, run_links): the same image and strategy images as connecting
     in the walk, to the rounding of the sums' order, traced or recorded and replayed;
-    a vertex cache, media, a moment pass, no bound on the depth or a pool past the
-    memory budget connects in the walk, and every pass does where DEFERRED is off."""
+    so with vcm's merge queries deferred as well; a vertex cache, media, a moment pass,
+    no bound on the depth or a pool past the memory budget connects in the walk, and
+    every pass does where DEFERRED is off."""
     from types import SimpleNamespace
     from bdpt_drjit import connect
     from bdpt_drjit.budgets import Budget
@@ -193,7 +194,13 @@ def test_deferred_connections_are_the_walks_own(freezing, monkeypatch):
         frozen_deferred = bdpt_drjit.render(scene, **{**kw, "seed": seed})
         monkeypatch.setattr(connect, "DEFERRED", False)
         np.testing.assert_allclose(frozen_deferred.image, frozen_inline.image, **TOL)
+    # With vcm's merge queries deferred too (merge.DEFERRED): both kernels after the walk.
+    from bdpt_drjit import merge
+    vcm = dict(kw, merging=True, radius=0.05)
+    walk = bdpt_drjit.render(scene, **vcm)
     monkeypatch.setattr(connect, "DEFERRED", True)
+    monkeypatch.setattr(merge, "DEFERRED", True)
+    np.testing.assert_allclose(bdpt_drjit.render(scene, **vcm).image, walk.image, **TOL)
     strategies = SimpleNamespace(max_depth=5, max_camera_vertices=lambda: 5)
     veach, cache = Budget(1.0, "all"), Budget(1.0, 2)
     assert link_pool(strategies, veach, 1024, False, False, 1 << 30).capacity == 4 * 1024
