@@ -432,6 +432,7 @@ class Renderer:
         self._pilot_round = 0           # passes of the round the pilot opens (1 or 2)
         self._pilot_kept = True         # the pilot's samples stay in the image
         self._pilot_reused = False      # its outcome came from an earlier render
+        self._second_look = False       # the round's second pass records moments too
         if fixed is None and self.spp >= MIN_SPP and self.pixels <= max_lanes:
             self._plan_pilot(max_lanes)
             if not self.media.present and not self._path_drops_light:
@@ -554,8 +555,9 @@ class Renderer:
         split to end exactly there: passes of other sizes cost more than they gave (each
         new size allocates its buffers anew: on Veach's bidirectional room, 128x72, 256
         spp, 8.0 s against 6.75 s), and a moment pass costs 4-20% more than a plain
-        one.  Not where the pilot chose path tracing (its samples give no other
-        candidate's moment), nor on a cluster (the workers' plan is fixed)."""
+        one.  Not where path tracing was chosen (its samples give no other
+        candidate's moment: the pilot looks again instead, ``_plan_second_look``), nor
+        on a cluster (the workers' plan is fixed)."""
         self._moment_passes = {i for i in self._moment_passes if i <= done}
         if not self.redecide or self.budget.light_ratio <= 0 or self.pilot is None:
             return
@@ -647,6 +649,11 @@ class Renderer:
         """The pilot pass (not the passes that complete its round)."""
         return self.pilot is not None and index < Pilot.PASSES
 
+    def _looks_again(self, index: int) -> bool:
+        """Pass ``index`` is the pilot round's second pass, rendered as the pilot
+        (``_plan_second_look``)."""
+        return self._second_look and index == Pilot.PASSES
+
     def _sampler(self, index: int, stream: int, lanes: int, spp: int) -> mi.Sampler:
         sampler = self.sensor.sampler().clone()
         sampler.set_sample_count(spp)
@@ -666,7 +673,7 @@ class Renderer:
 
     def _pass_rules(self, index: int):
         """(budget, heuristic, moment samples or None) of pass ``index``."""
-        if self._is_pilot_pass(index):
+        if self._is_pilot_pass(index) or self._looks_again(index):
             budget, heuristic, moments = self.pilot.budget(index)
             return budget, heuristic or self.settings.mis, moments
         if index in self._moment_passes and self.budget.light_ratio > 0:
@@ -693,7 +700,7 @@ class Renderer:
             eta = math.pi * radius * radius * n_light
             weights.set_merging(eta)
         rates += (eta,)
-        every = 1 if index < Pilot.PASSES else Pilot.moment_every(
+        every = 1 if index < Pilot.PASSES or self._looks_again(index) else Pilot.moment_every(
             lanes, spp, self.settings.merging and not budget.merges)
         images = StrategyImages(self.strategies, lanes) if self.strategy_images else None
         return PassContext(
@@ -712,7 +719,7 @@ class Renderer:
 
     def _render_pass(self, index, pixel_offset, n_pixels, spp, lanes):
         if (self._path_tracer is not None and index >= Pilot.PASSES
-                and self.budget == PATH_TRACING):
+                and self.budget == PATH_TRACING and not self._looks_again(index)):
             return self._path_traced_pass(index, pixel_offset, n_pixels, spp, lanes)
         timer = _StageTimer(self.timings is not None, self.kernel_history)
         # Stage 1: camera rays.
@@ -862,7 +869,29 @@ class Renderer:
         self.pilot.costs.merge_eta = self.merge_eta(self._pilot_round - 1)
         self.budget = self.pilot.decide(ctx.moments, _splat_moments(ctx, store), mean,
                                          self.plan[index][2], filled, stride).budget
+        self._plan_second_look()
         self._replan(self._pilot_round - 1)
+
+    def _plan_second_look(self) -> None:
+        """Where the pilot chose path tracing on a large film, the pass that completes
+        its round (the odd pixels) renders as the pilot does, BDPT with moments, and
+        its samples decide again with the pilot's (optimizer.Pilot.redecide): twice the
+        samples of the pilot's estimate before the render commits to path tracing,
+        whose passes give no other candidate's moment (``_plan_rounds``).  Its samples
+        stay in the image (the round's pixels have one sample each, as after the
+        pilot's own pass).  Only where it costs at most SECOND_LOOK_SHARE more than
+        path tracing those pixels would, of the render's price by the pilot's counts
+        (no clock): from 130 spp up behind the glass pane, where the pilot prices full
+        BDPT at 2.3x path tracing, 300 at 4x, 900 at 10x; not with merging (its pilot
+        merges for its moments alone), nor on a cluster (``redecide``)."""
+        self._second_look = False
+        if (not self.redecide or self.budget.light_ratio > 0 or self._pilot_round != 2
+                or self.settings.merging):
+            return
+        costs = self.pilot.costs
+        pilot, path = costs.of(self.pilot.budget(Pilot.PASSES)[0]), costs.of(PATH_TRACING)
+        extra = (pilot - path) * self.plan[Pilot.PASSES][1] * self.plan[Pilot.PASSES][2]
+        self._second_look = extra <= SECOND_LOOK_SHARE * path * self.pixels * self.spp
 
     def _pilot_pixels(self, shape, stride: int) -> mi.Bool:
         """The crop pixels (H, W, flat) of a pilot pass over one pixel in ``stride``:
@@ -997,6 +1026,11 @@ class Renderer:
 
 # The seed of a dropped pilot pass's random numbers (Renderer._seed_of).
 PILOT_SEED = 0x5EED
+# The share of a render's priced cost that a pilot's second look may add
+# (Renderer._plan_second_look).  Its pass also costs what the price leaves out, a
+# pilot pass's fixed cost: behind the glass pane at 128x128 (CPU, 8 renders
+# alternating) 1.02x the time at 128 spp, within the noise (0.98-0.99x) at 256-512.
+SECOND_LOOK_SHARE = 0.005
 
 
 class _ReusedPilot:

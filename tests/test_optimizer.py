@@ -209,7 +209,20 @@ CROPPED = ('<rfilter type="gaussian"/><boolean name="sample_border" value="true"
            '<integer name="crop_width" value="41"/><integer name="crop_height" value="37"/>')
 
 
-@pytest.mark.parametrize("film", ["box", "cropped", "large"])
+def _path_tracing_pilot(monkeypatch):
+    """Make every pilot choose path tracing (its estimates kept), as a pilot that
+    missed what path tracing renders poorly would."""
+    from bdpt_drjit.budgets import PATH_TRACING
+    decide = Pilot.decide
+
+    def forced(self, *args, **kwargs):
+        table = decide(self, *args, **kwargs).table
+        self.decision = self.first = optimizer.Decision(budget=PATH_TRACING, table=table)
+        return self.decision
+    monkeypatch.setattr(Pilot, "decide", forced)
+
+
+@pytest.mark.parametrize("film", ["box", "cropped", "large", "second look"])
 def test_the_pilot_round_is_unbiased_on_each_part_of_the_pixels(film, monkeypatch):
     """The pilot pass and each pass that completes its round are complete MIS
     estimators of their pixels: the light image keeps the splats in the pass's own
@@ -218,8 +231,13 @@ def test_the_pilot_round_is_unbiased_on_each_part_of_the_pixels(film, monkeypatc
     point-light caustic, which path tracing cannot render, came out of the pilot at
     half its brightness, 3% of a 16-spp render.)  "large": a film whose pilot pass
     takes every other pixel (Pilot.stride; here by fewer pilot lanes), and a second
-    pass the odd ones with the budget chosen."""
-    if film == "large":
+    pass the odd ones with the budget chosen; "second look": the same where the pilot
+    chose path tracing, the odd pixels rendered as the pilot's
+    (Renderer._plan_second_look; path-traced, they miss the caustic)."""
+    if film == "second look":
+        _path_tracing_pilot(monkeypatch)
+        monkeypatch.setattr(sys.modules["bdpt_drjit.render"], "SECOND_LOOK_SHARE", 1.0)
+    if film in ("large", "second look"):
         monkeypatch.setitem(optimizer.PILOT_LANES, "llvm", 512)
         monkeypatch.setitem(optimizer.PILOT_LANES, "cuda", 512)
     text = open(scene_path("point-caustic.xml")).read()
@@ -233,7 +251,7 @@ def test_the_pilot_round_is_unbiased_on_each_part_of_the_pixels(film, monkeypatc
     (w, h), b = f.crop_size(), border
     y, x = np.mgrid[0:h, 0:w]
     grid = (y + b) * (w + 2 * b) + x + b                     # the pilot's pixel index
-    stride = 2 if film == "large" else 1
+    stride = 1 if film in ("box", "cropped") else 2
     for part in range(stride):
         assert_statistically_equal(ours, ref, blocks=2, mask=grid % stride == part,
                                    what="pilot, pixels %d of every %d" % (part, stride))
@@ -257,6 +275,32 @@ def test_a_large_film_pilots_on_half_its_pixels(name, light):
     r.run_pass()
     assert r.at_round_end and r.spp_done == 1
     assert (r.budget.light_ratio > 0) == light, r.pilot.decision.describe()
+
+
+def test_a_path_tracing_pilot_looks_again_where_the_render_is_long(monkeypatch):
+    """Where the pilot chose path tracing on a large film, the pass that completes its
+    round renders as the pilot did, BDPT with moments, and decides again with the
+    pilot's samples: a point-light caustic, which path tracing cannot render, leaves
+    path tracing for light subpaths.  Only where that pass costs at most
+    SECOND_LOOK_SHARE of the render, priced by the pilot's counts: a shorter render
+    path-traces the odd pixels and commits."""
+    _path_tracing_pilot(monkeypatch)
+    render_module = sys.modules["bdpt_drjit.render"]
+    res = int(np.ceil(np.sqrt(2 * optimizer._pilot_lanes())))
+    scene = mi.load_file(scene_path("point-caustic.xml"), resx=res, resy=res)
+    long = render_module.Renderer(scene, spp=4096, seed=1, max_depth=8, memory_budget=8 << 30)
+    assert long._pilot_round == 2
+    long.run_pass()
+    assert long.budget.light_ratio == 0 and long._second_look
+    long.run_pass()
+    assert long.at_round_end and long.budget.light_ratio > 0
+    assert long.pilot.rounds == [(1.0, long.budget)]
+    assert "; after 1 spp light_paths=" in long.decision_text()
+    short = render_module.Renderer(scene, spp=32, seed=1, max_depth=8, memory_budget=8 << 30)
+    short.run_pass()
+    short.run_pass()
+    assert not short._second_look and short.budget.light_ratio == 0
+    assert short.pilot.rounds == [] and short.path_tracer_spp == 0.5
 
 
 def test_a_small_render_pilots_on_a_few_pixels_and_drops_its_samples():
