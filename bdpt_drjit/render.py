@@ -1028,8 +1028,9 @@ class Renderer:
 PILOT_SEED = 0x5EED
 # The share of a render's priced cost that a pilot's second look may add
 # (Renderer._plan_second_look).  Its pass also costs what the price leaves out, a
-# pilot pass's fixed cost: behind the glass pane at 128x128 (CPU, 8 renders
-# alternating) 1.02x the time at 128 spp, within the noise (0.98-0.99x) at 256-512.
+# pilot pass's fixed cost (about 8 ms at 128x128 on the CPU): behind the glass pane
+# 1.02-1.03x the time at 128x128 and 128 spp, 0.98-1.02x at 256-512, 1.007x at
+# 256x256 and 256 spp (benchmarks/experiments/second_look.py).
 SECOND_LOOK_SHARE = 0.005
 
 
