@@ -239,7 +239,12 @@ def link_bytes(strategies, budget, media: bool) -> int:
     depths = strategies.max_depth - 1
     if strategies.max_camera_vertices() is not None:
         depths = min(depths, strategies.max_camera_vertices())
-    return max(depths, 1) * 4 * (31 + dr.size_v(mi.Spectrum) + 5)  # VertexRecord's 31 values
+    return max(depths, 1) * _link_bytes()
+
+
+def _link_bytes() -> int:
+    """A Link's bytes: VertexRecord's 31 values, beta, and 5 more."""
+    return 4 * (31 + dr.size_v(mi.Spectrum) + 5)
 
 
 def link_pool(strategies, budget, lanes: int, moments: bool, media: bool,
@@ -251,8 +256,7 @@ def link_pool(strategies, budget, lanes: int, moments: bool, media: bool,
     per_lane = link_bytes(strategies, budget, media)
     if not per_lane or moments or lanes * per_lane > memory_budget:
         return None
-    record = 4 * (31 + dr.size_v(mi.Spectrum) + 5)
-    return Pool(Link, lanes * per_lane // record, allocate=False)
+    return Pool(Link, lanes * per_lane // _link_bytes(), allocate=False)
 
 
 def defer(ctx, store, state, v, connectible) -> None:
@@ -277,8 +281,8 @@ def run_links(ctx, store, cam) -> None:
     index = dr.arange(mi.UInt32, n)
     active = index < dr.gather(mi.UInt32, pool.count, dr.zeros(mi.UInt32, n))
     q = gather(pool.items, index, active)
-    v = q.record.vertex(at_lane(ctx.time, q.lane, active), at_lane(ctx.wavelengths, q.lane, active),
-                        False)
+    v = q.record.vertex(at_lane(ctx.time, q.lane, active),
+                        at_lane(ctx.wavelengths, q.lane, active), False)
     radiance, rays, _ = along_subpath(ctx, store, q, v, active, q.lane,
                                       dr.zeros(mi.Spectrum, n), dr.zeros(mi.UInt32, n))
     dr.scatter_reduce(dr.ReduceOp.Add, cam.radiance, radiance, q.lane, active)

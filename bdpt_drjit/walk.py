@@ -4,11 +4,12 @@
                               -> store y_i for connections -> scatter -> roulette
     camera walk, per depth j: intersect z_j -> s = 0 (emitter or environment hit)
                               -> MIS to area measure -> s = 1 (next event)
-                              -> s, t >= 2 (z_j to the lane's stored light vertices)
+                              -> s, t >= 2 (z_j to the lane's stored light vertices;
+                                 or, with connect.DEFERRED, z_j stored and connected
+                                 after the walk)
                               -> merges (``merging``: z_j with every stored light
                                  vertex within r, merge.py; or, with merge.DEFERRED,
                                  z_j stored and merged after the walk) -> scatter -> roulette
-                                 (with connect.DEFERRED, the connections of z_j too)
 
 ``strategy_subset`` ``ppm`` (merging alone) ends a camera subpath at the first vertex
 where it scatters smoothly: that vertex's merges render the rest.
