@@ -23,6 +23,7 @@ Functions that trace shadow rays also return how many they traced (statistics).
 """
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 
@@ -43,6 +44,11 @@ from .vertices import NONE, Pool, gather
 # 5x a whole sample of Mitsuba's path; RESULTS.md, "On a GPU").  Deferred, a kernel of
 # their own runs them, one lane per camera vertex that connects.
 DEFERRED = os.environ.get("BDPT_DEFERRED_CONNECTIONS") == "1"
+# Camera vertices that connect per lane that a pass's pool holds at first (Veach's
+# BDPT at 128x128: 2.5 in the Cornell box, 3.1 lit via its ceiling, 3.45 in Veach's
+# room); a pass that needs more runs its camera walk again with 1.25x what it needed,
+# and the passes after it are planned with that.
+LINKS_PER_LANE = 4.0
 
 
 def _shown(ctx, state):
@@ -227,19 +233,24 @@ class Link:
     lane: mi.UInt32         # the camera lane
 
 
-def link_bytes(strategies, budget, media: bool) -> int:
+def link_bytes(strategies, budget, media: bool, per_lane: float) -> int:
     """Bytes per camera lane of a render pass's deferred connections (``link_pool``,
     which render.Renderer._lanes_for adds to a lane's), or 0 where the camera walk
     connects at each vertex itself: DEFERRED off, a budget without connections or with
-    a vertex cache, a scene with media (a connection's ratio tracking keys its numbers
-    by the walk's lane), or no bound on the depth.  A lane connects at most once per
-    camera vertex z_j, j <= max_depth - 1, so the pool never overflows."""
-    if not DEFERRED or media or not budget.connects or budget.caches or strategies.max_depth < 0:
+    a vertex cache, or a scene with media (a connection's ratio tracking keys its
+    numbers by the walk's lane).  ``per_lane``: the camera vertices that connect per
+    lane that the pool holds, at most one per camera depth."""
+    if not DEFERRED or media or not budget.connects or budget.caches:
         return 0
-    depths = strategies.max_depth - 1
+    return int(_links(strategies, per_lane) * _link_bytes())
+
+
+def _links(strategies, per_lane: float) -> float:
+    """``per_lane``, at most one per camera vertex z_j, j <= max_depth - 1."""
+    depths = strategies.max_depth - 1 if strategies.max_depth >= 0 else None
     if strategies.max_camera_vertices() is not None:
-        depths = min(depths, strategies.max_camera_vertices())
-    return max(depths, 1) * _link_bytes()
+        depths = min(depths or 2 ** 31, strategies.max_camera_vertices())
+    return per_lane if depths is None else min(per_lane, max(depths, 1))
 
 
 def _link_bytes() -> int:
@@ -248,15 +259,18 @@ def _link_bytes() -> int:
 
 
 def link_pool(strategies, budget, lanes: int, moments: bool, media: bool,
-              memory_budget: int) -> Pool | None:
+              memory_budget: int, per_lane: float) -> Pool | None:
     """The pool of a render pass's deferred connections (``defer``, ``run_links``;
-    allocated by the walk that fills it), or None where the walk connects
-    (``link_bytes``), in a moment pass (its samples take slots in the walk's order),
-    or where the pool would pass ``memory_budget`` (a pass of explicit size)."""
-    per_lane = link_bytes(strategies, budget, media)
-    if not per_lane or moments or lanes * per_lane > memory_budget:
+    allocated by the walk that fills it), ``per_lane`` records per camera lane; None
+    where the walk connects (``link_bytes``), in a moment pass (its samples take slots
+    in the walk's order), or where the pool would pass ``memory_budget`` (a pass of
+    explicit size).  A walk that needs more runs again with a larger one
+    (render.Renderer._camera_subpaths)."""
+    per_lane_bytes = link_bytes(strategies, budget, media, per_lane)
+    if not per_lane_bytes or moments or lanes * per_lane_bytes > memory_budget:
         return None
-    return Pool(Link, lanes * per_lane // _link_bytes(), allocate=False)
+    return Pool(Link, max(1, int(math.ceil(lanes * _links(strategies, per_lane)))),
+                allocate=False)
 
 
 def defer(ctx, store, state, v, connectible) -> None:

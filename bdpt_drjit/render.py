@@ -246,8 +246,8 @@ def _recorded_light_walk(ctx, store):
 
 def _recorded_camera_walk(ctx, rays, store):
     """Stage 3's walk with the moment samples' buffers made inside it (as
-    ``_recorded_light_walk``); returns its final state and those buffers
-    (optimizer.MomentSamples.adopt)."""
+    ``_recorded_light_walk``); returns its final state, those buffers
+    (optimizer.MomentSamples.adopt) and the deferred connections' count."""
     if ctx.moments is not None:
         ctx.moments.allocate()
     for pool in (ctx.queries, ctx.links):
@@ -264,7 +264,8 @@ def _recorded_camera_walk(ctx, rays, store):
             connect.run_links(ctx, store, cam)
         if ctx.queries is not None:
             merge.run_queries(ctx, store, cam)
-    return cam, None if ctx.moments is None else ctx.moments.buffers()
+    return (cam, None if ctx.moments is None else ctx.moments.buffers(),
+            None if ctx.links is None else ctx.links.count)
 
 
 @functools.lru_cache(maxsize=8)
@@ -393,6 +394,7 @@ class Renderer:
         # (kept per count, every new count overflowed again: Veach's room ran one light
         # walk twice per render: 7% of its time at 128x128, 256 spp).
         self._capacity = [_VERTICES_PER_LANE, _SPLATS_PER_LANE]
+        self._links_per_lane = connect.LINKS_PER_LANE   # deferred connections' pool, raised too
         self._outgrown = False          # a light walk raised them in this pass
         self._plan(fixed, layers)
         self.redecide = True        # False: the pilot's decision and plan hold (cluster.py)
@@ -452,7 +454,8 @@ class Renderer:
         slower (each pass of a new size writes fresh memory, a page fault per 4 KiB:
         light_paths=0.25 in one pass of 63 spp took 1.11-1.16x the time of three, Cornell
         box 256x256)."""
-        links = connect.link_bytes(self.strategies, budget, self.media.present)
+        links = connect.link_bytes(self.strategies, budget, self.media.present,
+                                   self._links_per_lane)
 
         def lanes(ratio: float, vertices: int, splats: int, stores: bool) -> int:
             pools = (vertices * RECORD_BYTES if stores else 0) + splats * SPLAT_BYTES
@@ -740,13 +743,9 @@ class Renderer:
             ctx.queries = merge.query_pool(ctx.strategies, lanes, ctx.moments is not None,
                                            self.memory_budget)
         grid_seconds = timer.lap()
-        if store is not None:
-            ctx.links = connect.link_pool(ctx.strategies, ctx.budget, lanes,
-                                          ctx.moments is not None, ctx.media.present,
-                                          self.memory_budget)
 
         # Stage 3: camera subpaths, with every strategy t >= 2.
-        cam = self._camera_walk(ctx, rays, store)
+        cam = self._camera_subpaths(ctx, rays, store, lanes)
         # Every output the pass reads, in the walk's one kernel: an output evaluated
         # later would run the whole walk again (the pilot's slot counts did: 23 ms).
         dr.eval(cam.radiance, cam.hit, cam.rays, cam.slot, cam.specular_z1)
@@ -946,16 +945,39 @@ class Renderer:
             store.order = store.ordered()
         return store, light_rays
 
+    def _camera_subpaths(self, ctx, rays, store, lanes: int):
+        """Stage 3; where the pass defers its connections (connect.link_pool) and
+        their pool overflowed, runs the camera walk again with a larger one (nothing
+        has reached the film yet, and the walk's sampler and strategy images start
+        again as they were)."""
+        links = lambda: connect.link_pool(ctx.strategies, ctx.budget, lanes,   # noqa: E731
+                                          ctx.moments is not None, ctx.media.present,
+                                          self.memory_budget, self._links_per_lane)
+        ctx.links = None if store is None else links()
+        sampler = None if ctx.links is None else ctx.camera_sampler.clone()
+        while True:
+            cam = self._camera_walk(ctx, rays, store)
+            if ctx.links is None or not ctx.links.overflowed():
+                return cam
+            self._links_per_lane = ctx.links.size() * 5 / (4 * lanes)
+            self._outgrown = True       # the passes after this one: planned anew
+            ctx.links, ctx.camera_sampler = links(), sampler.clone()
+            if ctx.images is not None:
+                ctx.images = StrategyImages(self.strategies, lanes)
+
     @staticmethod
     def _camera_walk(ctx, rays, store):
         """Stage 3's walk, replayed where recorded (frozen.py), the moment samples'
-        buffers made inside it (see ``_recorded_light_walk``).  With strategy images it is
-        traced: their layers, lanes x strategies, would be copied by every replay."""
+        buffers and the deferred connections' pool made inside it (see
+        ``_recorded_light_walk``).  With strategy images it is traced: their layers,
+        lanes x strategies, would be copied by every replay."""
         if ctx.images is not None:
             return _recorded_camera_walk(ctx, rays, store)[0]
-        cam, buffers = frozen.call(_recorded_camera_walk, ctx, rays, store)
+        cam, buffers, links = frozen.call(_recorded_camera_walk, ctx, rays, store)
         if ctx.moments is not None:
             ctx.moments.adopt(buffers)
+        if ctx.links is not None:
+            ctx.links.adopt_count(links)
         return cam
 
     # -- results -------------------------------------------------------------------

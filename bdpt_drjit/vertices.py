@@ -191,6 +191,10 @@ class Pool:
     def overflowed(self) -> bool:
         return self.size() > self.capacity
 
+    def adopt_count(self, count) -> None:
+        """The counter a recorded walk that filled this pool returned (frozen.py)."""
+        self.count, self._size = count, None
+
 
 class VertexPool(Pool):
     """The pool of light vertices, packed (PackedVertices)."""

@@ -160,9 +160,10 @@ def test_a_textured_scene_is_traced_under_cuda():
 def test_deferred_connections_are_the_walks_own(freezing, monkeypatch):
     """With connect.DEFERRED, a render pass connects after its camera walk
     (connect.link_pool, run_links): the same image and strategy images as connecting
-    in the walk, to the rounding of the sums' order, traced or recorded and replayed;
-    so with vcm's merge queries deferred as well; a vertex cache, media, a moment pass,
-    no bound on the depth or a pool past the memory budget connects in the walk, and
+    in the walk, to the rounding of the sums' order, traced or recorded and replayed,
+    so with vcm's merge queries deferred as well, and where the pool overflowed and
+    the walk ran again with a larger one (Renderer._camera_subpaths); a vertex cache,
+    media, a moment pass or a pool past the memory budget connects in the walk, and
     every pass does where DEFERRED is off."""
     from types import SimpleNamespace
     from bdpt_drjit import connect
@@ -176,37 +177,43 @@ def test_deferred_connections_are_the_walks_own(freezing, monkeypatch):
         pools.append(link_pool(*args))
         return pools[-1]
 
-    monkeypatch.setattr(connect, "DEFERRED", True)
     monkeypatch.setattr(connect, "link_pool", recorded)
-    deferred = bdpt_drjit.render(scene, **kw)
-    assert len(pools) == 4 and all(p is not None and p.size() > 0 for p in pools)
-    monkeypatch.setattr(connect, "DEFERRED", False)
     inline = bdpt_drjit.render(scene, **kw)
-    assert pools[4:] and all(p is None for p in pools[4:])
-    np.testing.assert_allclose(deferred.image, inline.image, **TOL)
-    assert deferred.strategy_images.keys() == inline.strategy_images.keys()
-    for key, layer in inline.strategy_images.items():
-        np.testing.assert_allclose(deferred.strategy_images[key], layer, **TOL)
+    assert pools and all(p is None for p in pools)
+    monkeypatch.setattr(connect, "DEFERRED", True)
+    for per_lane in (connect.LINKS_PER_LANE, 0.05):   # 0.05: every pass's first overflows
+        monkeypatch.setattr(connect, "LINKS_PER_LANE", per_lane)
+        pools.clear()
+        deferred = bdpt_drjit.render(scene, **kw)
+        assert all(p is not None and 0 < p.size() <= p.capacity for p in pools[-4:])
+        assert (len(pools) > 4) == (per_lane < 1), len(pools)
+        np.testing.assert_allclose(deferred.image, inline.image, **TOL)
+        assert deferred.strategy_images.keys() == inline.strategy_images.keys()
+        for key, layer in inline.strategy_images.items():
+            np.testing.assert_allclose(deferred.strategy_images[key], layer, **TOL)
+    monkeypatch.setattr(connect, "LINKS_PER_LANE", 0.05)
     del kw["strategy_images"]                   # the walks recorded, then replayed
     for seed in (7, 8):
+        monkeypatch.setattr(connect, "DEFERRED", False)
         frozen_inline = bdpt_drjit.render(scene, **{**kw, "seed": seed})
         monkeypatch.setattr(connect, "DEFERRED", True)
         frozen_deferred = bdpt_drjit.render(scene, **{**kw, "seed": seed})
-        monkeypatch.setattr(connect, "DEFERRED", False)
         np.testing.assert_allclose(frozen_deferred.image, frozen_inline.image, **TOL)
     # With vcm's merge queries deferred too (merge.DEFERRED): both kernels after the walk.
     from bdpt_drjit import merge
     vcm = dict(kw, merging=True, radius=0.05)
+    monkeypatch.setattr(connect, "DEFERRED", False)
     walk = bdpt_drjit.render(scene, **vcm)
     monkeypatch.setattr(connect, "DEFERRED", True)
     monkeypatch.setattr(merge, "DEFERRED", True)
     np.testing.assert_allclose(bdpt_drjit.render(scene, **vcm).image, walk.image, **TOL)
     strategies = SimpleNamespace(max_depth=5, max_camera_vertices=lambda: 5)
     veach, cache = Budget(1.0, "all"), Budget(1.0, 2)
-    assert link_pool(strategies, veach, 1024, False, False, 1 << 30).capacity == 4 * 1024
-    assert link_pool(strategies, veach, 1024, True, False, 1 << 30) is None     # moments
-    assert link_pool(strategies, veach, 1024, False, True, 1 << 30) is None     # media
-    assert link_pool(strategies, cache, 1024, False, False, 1 << 30) is None    # a cache
+    assert link_pool(strategies, veach, 1024, False, False, 1 << 30, 2.5).capacity == 2560
+    assert link_pool(strategies, veach, 1024, False, False, 1 << 30, 9.0).capacity == 4096
     assert link_pool(SimpleNamespace(max_depth=-1, max_camera_vertices=lambda: None),
-                     veach, 1024, False, False, 1 << 30) is None
-    assert link_pool(strategies, veach, 1024, False, False, 1 << 19) is None    # too large
+                     veach, 1024, False, False, 1 << 30, 9.0).capacity == 9216
+    assert link_pool(strategies, veach, 1024, True, False, 1 << 30, 3.0) is None   # moments
+    assert link_pool(strategies, veach, 1024, False, True, 1 << 30, 3.0) is None   # media
+    assert link_pool(strategies, cache, 1024, False, False, 1 << 30, 3.0) is None  # a cache
+    assert link_pool(strategies, veach, 1024, False, False, 1 << 18, 3.0) is None  # too large
