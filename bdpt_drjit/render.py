@@ -950,9 +950,9 @@ class Renderer:
         their pool overflowed, runs the camera walk again with a larger one (nothing
         has reached the film yet, and the walk's sampler and strategy images start
         again as they were)."""
-        links = lambda: connect.link_pool(ctx.strategies, ctx.budget, lanes,   # noqa: E731
-                                          ctx.moments is not None, ctx.media.present,
-                                          self.memory_budget, self._links_per_lane)
+        def links():
+            return connect.link_pool(ctx.strategies, ctx.budget, lanes, ctx.moments is not None,
+                                     ctx.media.present, self.memory_budget, self._links_per_lane)
         ctx.links = None if store is None else links()
         sampler = None if ctx.links is None else ctx.camera_sampler.clone()
         while True:
